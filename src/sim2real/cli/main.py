@@ -1,0 +1,47 @@
+"""The ``sim2real`` command. Each sub-command lives in its own module with ``register``."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from sim2real.errors import UserError
+
+COMMANDS = ("scene", "render", "demo")
+"""Modules of :mod:`sim2real.cli`, each exposing ``register(subparsers)``."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, exit code 2, no usage dump
+        self.exit(2, f"sim2real: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="sim2real", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for name in COMMANDS:
+        importlib.import_module(f"sim2real.cli.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except UserError as e:
+        print(f"sim2real: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("sim2real: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # an unexpected failure still gets one line; SIM2REAL_DEBUG=1 shows it all
+        if os.environ.get("SIM2REAL_DEBUG"):
+            raise
+        print(f"sim2real: internal error: {type(e).__name__}: {e} (set SIM2REAL_DEBUG=1 for the traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,38 @@
+"""Folders of rendered views: ``view_00000.npz ...`` plus ``views.json``.
+
+``views.json`` is written last, so a folder without it is an unfinished render.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from sim2real.errors import UserError
+from sim2real.fileio import atomic_write_json
+
+MANIFEST = "views.json"
+
+
+def write_views_manifest(directory: str | os.PathLike, scene_name: str, scene_dir: str | os.PathLike, count: int) -> None:
+    atomic_write_json(
+        Path(directory) / MANIFEST,
+        {"format": "sim2real-views/1", "scene": scene_name, "scene_dir": str(Path(scene_dir).resolve()), "count": int(count)},
+    )
+
+
+def list_views(directory: str | os.PathLike) -> tuple[dict, list[Path]]:
+    """Manifest and sorted view files of a views folder; refuses incomplete folders."""
+    directory = Path(directory)
+    manifest_path = directory / MANIFEST
+    if not manifest_path.is_file():
+        raise UserError(f"{directory} is not a finished views folder (no {MANIFEST}); render it with 'sim2real render'")
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except (OSError, ValueError) as e:
+        raise UserError(f"cannot read {manifest_path}: {e}") from None
+    files = sorted(directory.glob("view_*.npz"))
+    if len(files) != manifest.get("count"):
+        raise UserError(f"{directory}: views.json lists {manifest.get('count')} views but {len(files)} view files exist")
+    return manifest, files

@@ -1,0 +1,82 @@
+"""Atomic file writing: write to a temporary name in the same folder, then rename.
+
+A reader never sees a half-written file under the final name, even after kill -9.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success it is renamed to ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix + ".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_json(path: str | os.PathLike, obj) -> None:
+    atomic_write_text(path, json.dumps(obj, indent=2) + "\n")
+
+
+def atomic_save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def atomic_write_image(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Write an 8- or 16-bit image (H x W, H x W x 3 RGB or H x W x 4 RGBA) as PNG."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def prepare_output_dir(path: str | os.PathLike, allowed: tuple[str, ...] = ()) -> Path:
+    """Create ``path`` or accept it when empty (or holding only ``allowed`` names).
+
+    An output directory that already holds other data is refused, so that no run
+    silently mixes its files with an earlier one.
+    """
+    from sim2real.errors import UserError
+
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise UserError(f"output path {path} exists and is not a directory")
+    if path.is_dir():
+        other = sorted(p.name for p in path.iterdir() if p.name not in allowed)
+        if other:
+            raise UserError(f"output directory {path} already holds other data ({other[0]}, ...); choose an empty one")
+    path.mkdir(parents=True, exist_ok=True)
+    return path

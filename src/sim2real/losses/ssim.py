@@ -1,0 +1,58 @@
+"""Structure loss on grey values: ``1 - MS-SSIM(grey(x), grey(y))`` (supplementary, L_ssim).
+
+Images enter in [-1, 1], are mapped to [0, 1] and reduced to grey
+``0.299 R + 0.587 G + 0.114 B`` (ITU-R BT.601), then compared with pytorch-msssim's
+``ms_ssim`` (data range 1, Gaussian window ``win`` with sigma 1.5). The paper uses 5 scales
+and an 11x11 window. pytorch-msssim requires the short image side to be
+> 16 (win - 1) whatever the number of scales (161 px for win 11, 97 for 7, 33 for 3);
+``check_ssim_size`` turns that into a clear error. Fewer than 5 scales use the first
+standard MS-SSIM weights, renormalised to sum to 1.
+"""
+
+from __future__ import annotations
+
+import torch
+from pytorch_msssim import ms_ssim
+
+MS_SSIM_WEIGHTS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)
+GREY = (0.299, 0.587, 0.114)
+
+
+def grey(x: torch.Tensor) -> torch.Tensor:
+    """(B, 3, H, W) in [-1, 1] -> (B, 1, H, W) grey in [0, 1]."""
+    if x.dim() != 4 or x.shape[1] != 3:
+        raise ValueError(f"grey: expected (B, 3, H, W), got {tuple(x.shape)}")
+    rgb = (x + 1) * 0.5
+    return GREY[0] * rgb[:, 0:1] + GREY[1] * rgb[:, 1:2] + GREY[2] * rgb[:, 2:3]
+
+
+def check_ssim_size(height: int, width: int, win: int) -> None:
+    """Raise ValueError unless pytorch-msssim accepts ``height x width`` with window ``win``."""
+    if win < 1 or win % 2 == 0:
+        raise ValueError(f"loss.ssim_win must be an odd positive window size, got {win}")
+    need = 16 * (win - 1)
+    if min(height, width) <= need:
+        raise ValueError(
+            f"MS-SSIM with loss.ssim_win={win} needs a short image side > 16*(win-1) = {need} px, "
+            f"got {height}x{width} (data.height x data.width); lower loss.ssim_win "
+            f"(largest allowed here: {_max_win(height, width)}) "
+            f"or enlarge the images"
+        )
+
+
+def _max_win(height: int, width: int) -> int:
+    w = (min(height, width) - 1) // 16 + 1  # largest w with 16 (w - 1) < short side
+    return w if w % 2 else w - 1
+
+
+def ms_ssim_loss(x: torch.Tensor, y: torch.Tensor, win: int = 11, scales: int = 5) -> torch.Tensor:
+    """``1 - MS-SSIM(grey(x), grey(y))`` averaged over the batch; x, y (B, 3, H, W) in [-1, 1]."""
+    if x.shape != y.shape:
+        raise ValueError(f"ms_ssim_loss: shapes differ, {tuple(x.shape)} vs {tuple(y.shape)}")
+    if not 1 <= scales <= len(MS_SSIM_WEIGHTS):
+        raise ValueError(f"loss.ssim_scales must be in 1..{len(MS_SSIM_WEIGHTS)}, got {scales}")
+    check_ssim_size(x.shape[-2], x.shape[-1], win)
+    w = MS_SSIM_WEIGHTS[:scales]
+    weights = [v / sum(w) for v in w]
+    gx, gy = grey(x).float(), grey(y).float()  # fp32 even under autocast: products of small values
+    return 1 - ms_ssim(gx, gy, data_range=1.0, size_average=True, win_size=win, weights=weights)

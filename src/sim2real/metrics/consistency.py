@@ -1,0 +1,341 @@
+"""Temporal-consistency metrics (paper Sec. "Metrics"): OF error, ORB-k accuracy, revisit protocol.
+
+Conventions
+-----------
+Frames
+    numpy arrays (H, W, 3) RGB or (H, W) grey, ``uint8`` in [0, 255] or float in [0, 1]
+    (torch tensors with the same layout are accepted and copied to the CPU). Both OpenCV methods
+    run on 8-bit grey images (``cv2.COLOR_RGB2GRAY``; floats are scaled by 255 and rounded).
+Optical flow
+    (H, W, 2) float, forward from frame a to frame b: the surface point seen at pixel
+    (col, row) of a is seen at (col + flow[row, col, 0], row + flow[row, col, 1]) in b, so
+    ``[..., 0]`` is the horizontal (u, column) and ``[..., 1]`` the vertical (v, row)
+    displacement in pixels. This is the convention of ``cv2.calcOpticalFlowFarneback(a, b)``.
+    Displacements do not depend on where a pixel's centre is put.
+3D points
+    (H, W, 3) world-space surface point per pixel in mm (the G-buffer's ``points``), with a
+    (H, W) bool ``valid`` mask (the G-buffer's ``mask``; background = False).
+Keypoints
+    OpenCV keypoint coordinates ``pt = (x, y)`` put pixel centres at integers (pixel (col, row)
+    covers [col - 0.5, col + 0.5) in x). The project convention puts the centre at
+    (col + 0.5, row + 0.5), i.e. ``u = x + 0.5``; both give the pixel index
+    ``col = floor(x + 0.5)``, ``row = floor(y + 0.5)`` (clipped to the image).
+"""
+
+from __future__ import annotations
+
+from typing import Iterable, Sequence
+
+import cv2
+import numpy as np
+
+#: Gunnar-Farnebäck parameters (OpenCV's documented example values; the paper gives none).
+FARNEBACK_PARAMS = dict(pyr_scale=0.5, levels=3, winsize=15, iterations=3, poly_n=5, poly_sigma=1.2, flags=0)
+
+#: ORB-k offsets reported by the paper (1 and 5/10 frames = 1/2 s apart).
+PAPER_ORB_KS = (1, 5, 10)
+
+
+# --------------------------------------------------------------------------- input handling
+def _to_numpy(x) -> np.ndarray:
+    if hasattr(x, "detach") and hasattr(x, "cpu"):  # torch tensor, without importing torch
+        x = x.detach().cpu().numpy()
+    return np.asarray(x)
+
+
+def to_grey_u8(frame) -> np.ndarray:
+    """(H, W[, 3]) RGB/grey, uint8 or float in [0, 1] -> (H, W) uint8 grey (contiguous)."""
+    f = _to_numpy(frame)
+    if f.ndim == 3 and f.shape[2] == 1:
+        f = f[..., 0]
+    if not (f.ndim == 2 or (f.ndim == 3 and f.shape[2] == 3)):
+        raise ValueError(f"frame must be (H, W) or (H, W, 3), got shape {f.shape}")
+    if f.dtype == np.uint8:
+        u8 = f
+    elif np.issubdtype(f.dtype, np.floating):
+        if f.size and (np.nanmin(f) < -1e-3 or np.nanmax(f) > 1 + 1e-3):
+            raise ValueError("float frames must lie in [0, 1]")
+        u8 = np.clip(np.rint(f * 255.0), 0, 255).astype(np.uint8)
+    else:
+        raise TypeError(f"frame must be uint8 or float, got {f.dtype}")
+    if u8.ndim == 3:
+        u8 = cv2.cvtColor(np.ascontiguousarray(u8), cv2.COLOR_RGB2GRAY)
+    return np.ascontiguousarray(u8)
+
+
+def _check_points(points, valid, shape: tuple[int, int], name: str) -> tuple[np.ndarray, np.ndarray]:
+    p = _to_numpy(points)
+    v = _to_numpy(valid)
+    if p.shape != shape + (3,):
+        raise ValueError(f"points_{name} must be (H, W, 3) = {shape + (3,)}, got {p.shape}")
+    if v.shape != shape:
+        raise ValueError(f"valid_{name} must be (H, W) = {shape}, got {v.shape}")
+    return p, v.astype(bool)
+
+
+# --------------------------------------------------------------------------- optical flow
+def farneback_flow(frame_a, frame_b) -> np.ndarray:
+    """Gunnar-Farnebäck flow a -> b, (H, W, 2) float32, with :data:`FARNEBACK_PARAMS`."""
+    a, b = to_grey_u8(frame_a), to_grey_u8(frame_b)
+    if a.shape != b.shape:
+        raise ValueError(f"frames differ in shape: {a.shape} vs {b.shape}")
+    return cv2.calcOpticalFlowFarneback(a, b, None, **FARNEBACK_PARAMS)
+
+
+def of_error(flow_gt, frame_a, frame_b, valid=None) -> float | None:
+    r"""Optical-flow error of a frame pair (paper: :math:`mean(|OF(a^{ref}_t, a^{ref}_{t+1}) - OF_{GF}(\hat b_t, \hat b_{t+1})|)`).
+
+    With :math:`F` the ground-truth flow, :math:`\hat F` the Farnebäck flow of the (translated)
+    frames (:func:`farneback_flow`) and :math:`V` the valid pixels,
+
+    .. math::
+        \mathrm{OF} = \frac{1}{2|V|} \sum_{p \in V} \bigl(|F_u(p) - \hat F_u(p)| + |F_v(p) - \hat F_v(p)|\bigr)
+
+    i.e. the mean absolute difference over valid pixels *and* both flow components, in pixels
+    (not the end-point error). ``valid`` (H, W) bool marks pixels whose ground-truth flow is
+    defined (surface visible in both frames); by default, pixels whose flow is finite. Returns
+    ``None`` when no pixel is valid.
+    """
+    gt = _to_numpy(flow_gt).astype(np.float64)
+    a = to_grey_u8(frame_a)
+    if gt.shape != a.shape + (2,):
+        raise ValueError(f"flow_gt must be (H, W, 2) = {a.shape + (2,)}, got {gt.shape}")
+    if valid is None:
+        v = np.isfinite(gt).all(axis=-1)
+    else:
+        v = _to_numpy(valid).astype(bool)
+        if v.shape != a.shape:
+            raise ValueError(f"valid must be (H, W) = {a.shape}, got {v.shape}")
+        v = v & np.isfinite(gt).all(axis=-1)
+    if not v.any():
+        return None
+    est = farneback_flow(a, frame_b).astype(np.float64)
+    return float(np.abs(gt[v] - est[v]).mean())
+
+
+def of_error_sequence(frames: Sequence, flows_gt: Sequence, valids: Sequence | None = None) -> dict:
+    """:func:`of_error` over consecutive pairs (t, t+1); ``flows_gt[t]`` is the flow t -> t+1.
+
+    Returns ``{"of_error": mean over pairs with a value (None if none), "per_pair": [...], "pairs": n}``;
+    every pair weighs the same.
+    """
+    T = len(frames)
+    if len(flows_gt) != T - 1:
+        raise ValueError(f"need len(flows_gt) == len(frames) - 1 = {T - 1}, got {len(flows_gt)}")
+    if valids is not None and len(valids) != T - 1:
+        raise ValueError(f"need len(valids) == len(frames) - 1 = {T - 1}, got {len(valids)}")
+    per = [of_error(flows_gt[t], frames[t], frames[t + 1], None if valids is None else valids[t])
+           for t in range(T - 1)]
+    vals = [e for e in per if e is not None]
+    return {"of_error": float(np.mean(vals)) if vals else None, "per_pair": per, "pairs": len(vals)}
+
+
+# --------------------------------------------------------------------------- ORB
+class _OrbFeatures:
+    """Keypoints (M, 2) float64 in OpenCV coordinates and descriptors (or None) of one frame."""
+
+    __slots__ = ("pts", "des", "shape")
+
+    def __init__(self, frame, n_features: int) -> None:
+        grey = to_grey_u8(frame)
+        self.shape = grey.shape
+        orb = cv2.ORB_create(nfeatures=int(n_features))
+        kps, des = orb.detectAndCompute(grey, None)
+        self.pts = np.array([kp.pt for kp in kps], dtype=np.float64).reshape(-1, 2)
+        self.des = des if des is not None and len(des) else None
+
+
+def _match(fa: _OrbFeatures, fb: _OrbFeatures) -> tuple[np.ndarray, np.ndarray]:
+    if fa.des is None or fb.des is None:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+    matches = matcher.match(fa.des, fb.des)
+    if not matches:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    ia = np.array([m.queryIdx for m in matches])
+    ib = np.array([m.trainIdx for m in matches])
+    return fa.pts[ia], fb.pts[ib]
+
+
+def orb_matches(frame_a, frame_b, n_features: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+    """Cross-checked ORB matches between two frames.
+
+    ORB (``cv2.ORB_create(nfeatures=n_features)``, other parameters OpenCV's defaults) on the
+    8-bit grey frames, brute-force Hamming matching with cross-check (a match is kept only if
+    each descriptor is the other's nearest neighbour). Returns ``(pts_a, pts_b)``, each (M, 2)
+    float64 ``(x, y)`` in OpenCV keypoint coordinates (pixel centres at integers). A frame
+    without descriptors (e.g. a smooth image) gives M = 0.
+    """
+    return _match(_OrbFeatures(frame_a, n_features), _OrbFeatures(frame_b, n_features))
+
+
+def keypoint_pixels(pts: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV keypoint coordinates (M, 2) -> (rows, cols) int arrays: ``floor(pt + 0.5)``, clipped."""
+    pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+    cols = np.clip(np.floor(pts[:, 0] + 0.5).astype(np.int64), 0, shape[1] - 1)
+    rows = np.clip(np.floor(pts[:, 1] + 0.5).astype(np.int64), 0, shape[0] - 1)
+    return rows, cols
+
+
+def match_correctness(pts_a, pts_b, points_a, points_b, valid_a, valid_b, threshold_mm: float = 1.0) -> np.ndarray:
+    """(M,) bool: is each match (pts_a[i] <-> pts_b[i]) on the same 3D location?
+
+    Correct iff both keypoints' pixels (:func:`keypoint_pixels`) are valid and
+    ``|| points_a[pixel_a] - points_b[pixel_b] ||_2 < threshold_mm``. A keypoint on background
+    (invalid) makes the match incorrect.
+    """
+    shape = _to_numpy(valid_a).shape
+    pa, va = _check_points(points_a, valid_a, shape, "a")
+    pb, vb = _check_points(points_b, valid_b, shape, "b")
+    ra, ca = keypoint_pixels(pts_a, shape)
+    rb, cb = keypoint_pixels(pts_b, shape)
+    ok = va[ra, ca] & vb[rb, cb]
+    dist = np.linalg.norm(pa[ra, ca].astype(np.float64) - pb[rb, cb].astype(np.float64), axis=-1)
+    return ok & (dist < threshold_mm)
+
+
+def _summary(correct: int, total: int) -> dict:
+    return {"correct": int(correct), "total": int(total),
+            "accuracy": (correct / total) if total > 0 else None}
+
+
+def orb_accuracy(frame_a, frame_b, points_a, points_b, valid_a, valid_b, threshold_mm: float = 1.0,
+                 n_features: int = 1000) -> dict:
+    """ORB match accuracy of one frame pair: ``{"correct", "total", "accuracy"}``.
+
+    ``total`` = number of cross-checked ORB matches (:func:`orb_matches`), ``correct`` = those
+    whose two 3D points are < ``threshold_mm`` apart (:func:`match_correctness`, paper: 1 mm),
+    ``accuracy`` = correct / total, or ``None`` when there is no match.
+    """
+    pts_a, pts_b = orb_matches(frame_a, frame_b, n_features)
+    ok = match_correctness(pts_a, pts_b, points_a, points_b, valid_a, valid_b, threshold_mm)
+    return _summary(int(ok.sum()), len(ok))
+
+
+def _pairs_summary(k: int, per_pair: list[tuple[int, int]]) -> dict:
+    correct = sum(c for c, _ in per_pair)
+    total = sum(t for _, t in per_pair)
+    n = len(per_pair)
+    out = _summary(correct, total)
+    out.update(k=int(k), pairs=n, mean_correct=(correct / n) if n else None,
+               mean_matches=(total / n) if n else None)
+    return out
+
+
+def _seq_len_check(frames, points, valids) -> int:
+    T = len(frames)
+    if len(points) != T or len(valids) != T:
+        raise ValueError(f"frames, points and valids need the same length (got {T}, {len(points)}, {len(valids)})")
+    return T
+
+
+def orb_curve(frames: Sequence, points: Sequence, valids: Sequence, ks: Iterable[int] = range(1, 21),
+              threshold_mm: float = 1.0, n_features: int = 1000) -> dict[int, dict]:
+    """ORB-k for each k in ``ks`` over all pairs (t, t+k), t = 0..T-1-k.
+
+    ``frames``: T frames; ``points``: T arrays (H, W, 3) mm; ``valids``: T masks (H, W).
+    For each k: ``accuracy`` = sum of correct / sum of matches over the pairs (pooled, so pairs
+    with many matches weigh more; None if no match at all), ``mean_correct`` = mean number of
+    correct matches per pair (the paper's "average number of correct matches per image pair"),
+    plus ``correct``, ``total``, ``pairs``, ``mean_matches``. A k >= T has 0 pairs and None values.
+    ORB-1/5/10 of the paper are ``ks = (1, 5, 10)``. Returns ``{k: {...}}``.
+    """
+    T = _seq_len_check(frames, points, valids)
+    ks = [int(k) for k in ks]
+    if any(k < 1 for k in ks):
+        raise ValueError(f"ks must be >= 1, got {ks}")
+    feats = [_OrbFeatures(f, n_features) for f in frames]
+    out = {}
+    for k in ks:
+        per = []
+        for t in range(T - k):
+            pa, pb = _match(feats[t], feats[t + k])
+            ok = match_correctness(pa, pb, points[t], points[t + k], valids[t], valids[t + k], threshold_mm)
+            per.append((int(ok.sum()), len(ok)))
+        out[k] = _pairs_summary(k, per)
+    return out
+
+
+# --------------------------------------------------------------------------- revisit protocol
+def view_of_extended(e: int, T: int) -> int:
+    """0-based view shown at 0-based position ``e`` of the extended sequence 1..T, T..1."""
+    if not 0 <= e < 2 * T:
+        raise ValueError(f"extended index {e} outside [0, {2 * T})")
+    return e if e < T else 2 * T - 1 - e
+
+
+def revisit_pairs(T: int, k: int) -> list[tuple[int, int]]:
+    """Pairs (i, j) of 0-based positions in the extended sequence compared by the revisit protocol.
+
+    The paper extends 1..T to 1, ..., T, T, ..., 1 (1-based positions s = 1..2T; position s > T
+    shows view 2T + 1 - s) and compares forward frame t with position 2T - t (ORB-1 and OF),
+    2T - t - 4 (ORB-5) and 2T - t - 9 (ORB-10): in general 2T - t - (k - 1), which shows view
+    t + k on the way back. In 0-based terms (i = t - 1):
+
+        i = 0, ..., T - 1 - k   and   j = 2T - 1 - i - k,   with view_of_extended(j) = i + k.
+
+    Returns an empty list when k >= T.
+    """
+    if T < 1 or k < 1:
+        raise ValueError(f"need T >= 1 and k >= 1, got T={T}, k={k}")
+    return [(i, 2 * T - 1 - i - k) for i in range(max(T - k, 0))]
+
+
+def _per_view(seq, T: int, name: str):
+    """Index function: ``seq`` given per view (length T) or per extended frame (length 2T)."""
+    n = len(seq)
+    if n == T:
+        return lambda e: seq[view_of_extended(e, T)]
+    if n == 2 * T:
+        return lambda e: seq[e]
+    raise ValueError(f"{name} must have length T={T} (per view) or 2T={2 * T} (per extended frame), got {n}")
+
+
+def revisit_orb(frames_ext: Sequence, points: Sequence, valids: Sequence, k: int, threshold_mm: float = 1.0,
+                n_features: int = 1000) -> dict:
+    """ORB-k under the revisit protocol ("OF-UNIT (revisit)").
+
+    ``frames_ext``: the 2T translated frames of the extended sequence (forward then backward).
+    ``points``/``valids``: per view (length T) or per extended frame (length 2T). Compares
+    ``frames_ext[i]`` with ``frames_ext[j]`` for (i, j) in :func:`revisit_pairs` ``(T, k)``; the
+    3D points are those of views i and i + k. Same summary as one entry of :func:`orb_curve`.
+    """
+    n = len(frames_ext)
+    if n % 2 or n == 0:
+        raise ValueError(f"frames_ext must have an even, positive length 2T, got {n}")
+    T = n // 2
+    P = _per_view(points, T, "points")
+    V = _per_view(valids, T, "valids")
+    feats: dict[int, _OrbFeatures] = {}
+
+    def f(e: int) -> _OrbFeatures:
+        if e not in feats:
+            feats[e] = _OrbFeatures(frames_ext[e], n_features)
+        return feats[e]
+
+    per = []
+    for i, j in revisit_pairs(T, k):
+        pa, pb = _match(f(i), f(j))
+        ok = match_correctness(pa, pb, P(i), P(j), V(i), V(j), threshold_mm)
+        per.append((int(ok.sum()), len(ok)))
+    return _pairs_summary(k, per)
+
+
+def revisit_of(frames_ext: Sequence, flows_gt: Sequence, valids: Sequence | None = None) -> dict:
+    """OF error under the revisit protocol.
+
+    ``frames_ext``: 2T frames; ``flows_gt[i]``: ground-truth flow from view i to view i + 1
+    (T - 1 arrays), ``valids[i]`` its mask. Pair i compares ``frames_ext[i]`` (view i) with
+    ``frames_ext[2T - 2 - i]`` (view i + 1 on the way back), see :func:`revisit_pairs` with k = 1.
+    Returns ``{"of_error": mean over pairs, "per_pair": [...], "pairs": n}``.
+    """
+    n = len(frames_ext)
+    if n % 2 or n == 0:
+        raise ValueError(f"frames_ext must have an even, positive length 2T, got {n}")
+    T = n // 2
+    if len(flows_gt) != T - 1 or (valids is not None and len(valids) != T - 1):
+        raise ValueError(f"need T - 1 = {T - 1} flows (and valids), got {len(flows_gt)}")
+    per = [of_error(flows_gt[i], frames_ext[i], frames_ext[j], None if valids is None else valids[i])
+           for i, j in revisit_pairs(T, 1)]
+    vals = [e for e in per if e is not None]
+    return {"of_error": float(np.mean(vals)) if vals else None, "per_pair": per, "pairs": len(vals)}

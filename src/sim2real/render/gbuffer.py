@@ -1,0 +1,97 @@
+"""The G-buffer of one view: what a ray caster returns and what every later stage reads.
+
+Keys, shapes and units (also in docs/formats.md):
+
+==================  ============  =========  ====================================================
+key                 shape         dtype      meaning
+==================  ============  =========  ====================================================
+``K``               (3, 3)        float64    pinhole intrinsics (pixels)
+``world_to_camera`` (4, 4)        float64    rigid transform, OpenCV axes (x right, y down, z fwd)
+``depth``           (H, W)        float32    z-depth in the camera frame, mm; 0 = no surface
+``distance``        (H, W)        float32    Euclidean camera-to-point distance, mm; 0 = none
+``normal``          (H, W, 3)     float32    world-space unit normal, smooth, facing the camera
+``object_id``       (H, W)        int16      index into ``classes``; -1 = background
+``points``          (H, W, 3)     float32    world-space surface point, mm; 0 where no surface
+``classes``         (O,)          str        class name of each object id
+==================  ============  =========  ====================================================
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim2real.errors import UserError
+from sim2real.fileio import atomic_save_npz
+from sim2real.scene.camera import Camera
+
+KEYS = ("K", "world_to_camera", "depth", "distance", "normal", "object_id", "points", "classes")
+
+
+@dataclass
+class GBuffer:
+    K: np.ndarray
+    world_to_camera: np.ndarray
+    depth: np.ndarray
+    distance: np.ndarray
+    normal: np.ndarray
+    object_id: np.ndarray
+    points: np.ndarray
+    classes: tuple[str, ...]
+
+    @property
+    def height(self) -> int:
+        return int(self.depth.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.depth.shape[1])
+
+    @property
+    def mask(self) -> np.ndarray:
+        """True where a ray hit a surface."""
+        return self.object_id >= 0
+
+    @property
+    def camera(self) -> Camera:
+        return Camera(self.K, self.world_to_camera, self.height, self.width)
+
+    def class_index(self) -> np.ndarray:
+        """Per-pixel index into :data:`sim2real.scene.scene.CLASSES` (-1 = background).
+
+        Object ids follow the scene's object order; this maps them to the fixed class order so
+        that a missing class never shifts an index."""
+        from sim2real.scene.scene import CLASSES
+
+        lut = np.array([CLASSES.index(c) for c in self.classes] + [-1], dtype=np.int16)
+        return lut[self.object_id]  # -1 indexes the appended background entry
+
+    def save(self, path: str | os.PathLike) -> None:
+        atomic_save_npz(
+            path,
+            K=self.K,
+            world_to_camera=self.world_to_camera,
+            depth=self.depth,
+            distance=self.distance,
+            normal=self.normal,
+            object_id=self.object_id,
+            points=self.points,
+            classes=np.array(self.classes, dtype=str),
+        )
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "GBuffer":
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                missing = [k for k in KEYS if k not in z]
+                if missing:
+                    raise UserError(f"view file {path} lacks key '{missing[0]}'")
+                data = {k: z[k] for k in KEYS}
+        except UserError:
+            raise
+        except Exception as e:  # zip / format errors of a damaged file
+            raise UserError(f"cannot read view file {path}: {e}") from None
+        data["classes"] = tuple(str(c) for c in data["classes"])
+        return cls(**data)

@@ -1,0 +1,178 @@
+"""Scenes: objects with a class and a triangle mesh in millimetres, saved as a directory.
+
+Layout on disk::
+
+    SCENE/
+      scene.json        {"format": "sim2real-scene/1", "name", "objects": [{"name", "class",
+                         "mesh"}], "camera_region": {"center", "radii"}, "up", "metadata"}
+      meshes/NAME.ply   one binary PLY per object (any trimesh format is read on load)
+
+The scene knows nothing about rendering. Object order defines the object ids of the
+G-buffers; :data:`CLASSES` fixes the class order used by labels and colours.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from sim2real.errors import UserError
+
+CLASSES: tuple[str, ...] = ("liver", "fat", "ligament", "abdominal_wall", "gallbladder")
+"""Object classes in their fixed order (background = -1)."""
+
+FORMAT = "sim2real-scene/1"
+
+
+@dataclass
+class SceneObject:
+    name: str
+    cls: str
+    mesh: trimesh.Trimesh
+
+    def __post_init__(self) -> None:
+        if self.cls not in CLASSES:
+            raise UserError(f"unknown class '{self.cls}' for object '{self.name}' (known: {', '.join(CLASSES)})")
+        check_mesh(self.mesh, self.name)
+
+
+@dataclass
+class CameraRegion:
+    """An axis-aligned ellipsoid (mm) inside which camera centres are sampled."""
+
+    center: np.ndarray
+    radii: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.center = np.asarray(self.center, dtype=np.float64).reshape(3)
+        self.radii = np.asarray(self.radii, dtype=np.float64).reshape(3)
+        if not (np.all(np.isfinite(self.center)) and np.all(np.isfinite(self.radii)) and np.all(self.radii > 0)):
+            raise UserError("camera region needs a finite centre and three positive radii (mm)")
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``n`` points uniformly distributed in the ellipsoid."""
+        d = rng.normal(size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        r = rng.uniform(size=(n, 1)) ** (1.0 / 3.0)
+        return self.center + d * r * self.radii
+
+    def clamp(self, points: np.ndarray) -> np.ndarray:
+        """Pull points outside the ellipsoid back onto its surface."""
+        q = (points - self.center) / self.radii
+        n = np.linalg.norm(q, axis=-1, keepdims=True)
+        return self.center + q / np.maximum(n, 1.0) * self.radii
+
+    def to_json(self) -> dict:
+        return {"center": self.center.tolist(), "radii": self.radii.tolist()}
+
+
+@dataclass
+class Scene:
+    name: str
+    objects: list[SceneObject]
+    camera_region: CameraRegion
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
+    """World direction towards the patient's head; it appears upwards in random views."""
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.objects:
+            raise UserError(f"scene '{self.name}' has no objects")
+        names = [o.name for o in self.objects]
+        if len(set(names)) != len(names):
+            raise UserError(f"scene '{self.name}' has duplicate object names")
+        self.up = np.asarray(self.up, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(self.up)) or np.linalg.norm(self.up) < 1e-9:
+            raise UserError("scene 'up' must be a non-zero finite vector")
+        self.up = self.up / np.linalg.norm(self.up)
+
+    @property
+    def classes(self) -> tuple[str, ...]:
+        return tuple(o.cls for o in self.objects)
+
+    def objects_of(self, cls: str) -> list[int]:
+        return [i for i, o in enumerate(self.objects) if o.cls == cls]
+
+    def bounds(self) -> np.ndarray:
+        """(O, 2, 3) per-object bounding boxes (min, max) in mm."""
+        return np.stack([o.mesh.bounds for o in self.objects]).astype(np.float64)
+
+    # --- persistence ---------------------------------------------------------------------------
+
+    def to_json(self) -> dict:
+        return {
+            "format": FORMAT,
+            "name": self.name,
+            "objects": [{"name": o.name, "class": o.cls, "mesh": f"meshes/{o.name}.ply"} for o in self.objects],
+            "camera_region": self.camera_region.to_json(),
+            "up": self.up.tolist(),
+            "metadata": self.metadata,
+        }
+
+    def save(self, directory: str | os.PathLike) -> Path:
+        """Write the scene atomically: into a temporary sibling folder, then rename."""
+        directory = Path(directory)
+        if directory.exists() and any(directory.iterdir()):
+            raise UserError(f"output directory {directory} already holds other data; choose an empty one")
+        directory.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+        try:
+            (tmp / "meshes").mkdir()
+            for o in self.objects:
+                o.mesh.export(tmp / "meshes" / f"{o.name}.ply", file_type="ply", encoding="binary")
+            (tmp / "scene.json").write_text(json.dumps(self.to_json(), indent=2) + "\n")
+            if directory.exists():
+                directory.rmdir()
+            os.replace(tmp, directory)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
+        return directory
+
+    @classmethod
+    def load(cls, directory: str | os.PathLike) -> "Scene":
+        from sim2real.scene.io import load_mesh
+
+        directory = Path(directory)
+        spec_path = directory / "scene.json" if directory.is_dir() else directory
+        if not spec_path.is_file():
+            raise UserError(f"no scene at {directory} (expected a folder with scene.json)")
+        try:
+            spec = json.loads(spec_path.read_text())
+        except (OSError, ValueError) as e:
+            raise UserError(f"cannot read {spec_path}: {e}") from None
+        root = spec_path.parent
+        try:
+            objects = []
+            for entry in spec["objects"]:
+                mesh = load_mesh(root / entry["mesh"], entry["name"])
+                objects.append(SceneObject(entry["name"], entry["class"], mesh))
+            region = spec["camera_region"]
+            return cls(
+                name=str(spec.get("name", root.name)),
+                objects=objects,
+                camera_region=CameraRegion(region["center"], region["radii"]),
+                up=np.array(spec.get("up", [0.0, 1.0, 0.0])),
+                metadata=dict(spec.get("metadata", {})),
+            )
+        except (KeyError, TypeError, ValueError) as e:
+            raise UserError(f"{spec_path} is not a valid scene description ({type(e).__name__}: {e})") from None
+
+
+def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
+    """Refuse meshes the ray caster cannot use: empty, non-triangle, non-finite."""
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise UserError(f"mesh '{name}' is not a triangle mesh")
+    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+        raise UserError(f"mesh '{name}' is empty (no triangles)")
+    if mesh.faces.ndim != 2 or mesh.faces.shape[1] != 3:
+        raise UserError(f"mesh '{name}' is not made of triangles")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise UserError(f"mesh '{name}' has NaN or infinite vertices")

@@ -1,0 +1,44 @@
+"""Shared fixtures: tiny scenes built in the test session (nothing is downloaded)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from sim2real.scene.scene import CameraRegion, Scene, SceneObject
+
+
+def plane_mesh(z: float = 0.0, half: float = 500.0) -> trimesh.Trimesh:
+    v = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]], float)
+    return trimesh.Trimesh(v, np.array([[0, 1, 2], [0, 2, 3]]), process=False)
+
+
+def sphere_mesh(centre, radius: float, subdivisions: int = 6) -> trimesh.Trimesh:
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    m.apply_translation(centre)
+    return m
+
+
+@pytest.fixture(scope="session")
+def analytic_scene() -> Scene:
+    """A plane z = 0 (class liver) and a sphere of radius 20 mm centred at (0, 0, 30) (fat)."""
+    return Scene(
+        "analytic",
+        [SceneObject("plane", "liver", plane_mesh()), SceneObject("ball", "fat", sphere_mesh([0, 0, 30], 20.0))],
+        CameraRegion([0, 0, 100], [10, 10, 10]),
+    )
+
+
+@pytest.fixture(scope="session")
+def procedural_scene():
+    from sim2real.scene.procedural import generate_scene
+
+    return generate_scene(11)
+
+
+@pytest.fixture(scope="session")
+def procedural_caster(procedural_scene):
+    from sim2real.render.raycast import RayCaster
+
+    return RayCaster(procedural_scene)

@@ -1,0 +1,149 @@
+"""Every bad input gets one clear line on stderr and a non-zero exit, never a traceback."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+from sim2real.cli.main import main
+from sim2real.scene.procedural import generate_scene
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+def assert_one_line_error(code, err, *words):
+    assert code != 0
+    assert "Traceback" not in err
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1, err
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+@pytest.fixture
+def good_mesh(tmp_path):
+    path = tmp_path / "liver.stl"
+    trimesh.creation.icosphere(subdivisions=2, radius=50).export(path)
+    return path
+
+
+@pytest.fixture
+def wall_mesh(tmp_path):
+    path = tmp_path / "wall.ply"
+    inner = trimesh.creation.icosphere(subdivisions=3, radius=300)
+    inner.invert()
+    outer = trimesh.creation.icosphere(subdivisions=3, radius=320)
+    trimesh.util.concatenate([outer, inner]).export(path)
+    return path
+
+
+def _import(capsys, tmp_path, *meshes, region="0,0,150,20,20,20", out="scene"):
+    args = ["scene", "import"]
+    for m in meshes:
+        args += ["--mesh", str(m)]
+    return run(capsys, *args, "--camera-region", region, "--out", str(tmp_path / out))
+
+
+def test_import_good_scene(capsys, tmp_path, good_mesh, wall_mesh):
+    code, err = _import(capsys, tmp_path, f"{good_mesh}=liver", f"{wall_mesh}=abdominal_wall")
+    assert code == 0, err
+    assert (tmp_path / "scene" / "scene.json").is_file()
+
+
+def test_missing_mesh_file(capsys, tmp_path):
+    assert_one_line_error(*_import(capsys, tmp_path, f"{tmp_path}/nope.obj=liver"), "does not exist")
+
+
+def test_unreadable_mesh_file(capsys, tmp_path):
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(b"ply\nformat garbage\n\x00\x01\x02")
+    assert_one_line_error(*_import(capsys, tmp_path, f"{bad}=liver"), "bad.ply")
+
+
+def test_empty_mesh(capsys, tmp_path):
+    empty = tmp_path / "empty.obj"
+    empty.write_text("# nothing\nv 0 0 0\nv 1 0 0\n")
+    code, err = _import(capsys, tmp_path, f"{empty}=liver")
+    assert_one_line_error(code, err)
+    assert "empty" in err or "not a triangle mesh" in err
+
+
+def test_non_triangle_mesh(capsys, tmp_path):
+    cloud = tmp_path / "cloud.ply"
+    trimesh.PointCloud(np.random.default_rng(0).normal(size=(50, 3))).export(cloud)
+    assert_one_line_error(*_import(capsys, tmp_path, f"{cloud}=liver"), "not a triangle mesh")
+
+
+def test_nan_vertices(capsys, tmp_path):
+    path = tmp_path / "nan.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
+    assert_one_line_error(*_import(capsys, tmp_path, f"{path}=liver"), "NaN")
+
+
+def test_unknown_class(capsys, tmp_path, good_mesh):
+    assert_one_line_error(*_import(capsys, tmp_path, f"{good_mesh}=spleen"), "unknown class 'spleen'")
+
+
+def test_camera_region_inside_organ(capsys, tmp_path, good_mesh, wall_mesh):
+    code, err = _import(capsys, tmp_path, f"{good_mesh}=liver", f"{wall_mesh}=abdominal_wall", region="0,0,0,10,10,10")
+    assert_one_line_error(code, err, "inside organ", "liver")
+
+
+def test_camera_region_outside_wall(capsys, tmp_path, good_mesh, wall_mesh):
+    code, err = _import(capsys, tmp_path, f"{good_mesh}=liver", f"{wall_mesh}=abdominal_wall", region="0,0,600,10,10,10")
+    assert_one_line_error(code, err, "outside the abdominal wall")
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("s") / "scene"
+    generate_scene(2).save(d)
+    return d
+
+
+def test_output_dir_with_other_data(capsys, tmp_path, scene_dir):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    code, err = run(capsys, "render", str(scene_dir), "--views", "1", "--height", "16", "--width", "16", "--out", str(out))
+    assert_one_line_error(code, err, "already holds other data")
+    code, err = run(capsys, "scene", "generate", "--seed", "1", "--out", str(out))
+    assert_one_line_error(code, err, "already holds other data")
+    assert (out / "keep.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize("flags,word", [
+    (["--views", "0"], "--views"),
+    (["--views", "two"], "--views"),
+    (["--views", "1", "--height", "-5"], "--height"),
+    (["--views", "1", "--height", "4"], "image size"),
+    (["--views", "1", "--width", "100000"], "image size"),
+])
+def test_invalid_size_or_count(capsys, tmp_path, scene_dir, flags, word):
+    code, err = 0, ""
+    try:
+        code, err = run(capsys, "render", str(scene_dir), *flags, "--out", str(tmp_path / "o"))
+    except SystemExit as e:  # argparse rejects before main's handler
+        code, err = e.code, capsys.readouterr().err.strip()
+    assert_one_line_error(code, err, word)
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_bad_trajectory_rows(capsys, tmp_path, scene_dir):
+    traj = tmp_path / "t.txt"
+    traj.write_text("# width 32\n# height 16\n# K 20 0 16 0 20 8 0 0 1\n0 1 2 3 0 0 0 1\n0.2 1 2 oops\n")
+    code, err = run(capsys, "render", str(scene_dir), "--trajectory", str(traj), "--out", str(tmp_path / "o"))
+    assert_one_line_error(code, err, "t.txt:5")
+
+
+def test_entry_point_has_no_traceback(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "sim2real.cli.main", "render", str(tmp_path / "none"), "--views", "1",
+                        "--out", str(tmp_path / "o")], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.strip().startswith("sim2real: error:") and len(r.stderr.strip().splitlines()) == 1
