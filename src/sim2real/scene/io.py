@@ -19,7 +19,7 @@ from sim2real.scene.scene import CLASSES, check_mesh
 def _read(path: Path) -> trimesh.Trimesh | trimesh.Scene:
     if not path.is_file():
         raise UserError(f"mesh file {path} does not exist")
-    kwargs = {"split_object": True, "group_material": False} if path.suffix.lower() == ".obj" else {}
+    kwargs = {"split_objects": True, "group_material": False} if path.suffix.lower() == ".obj" else {}
     try:
         return trimesh.load(str(path), process=False, **kwargs)
     except Exception as e:  # trimesh raises many types for unreadable files
