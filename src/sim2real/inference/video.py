@@ -1,0 +1,169 @@
+"""Frames -> H.264 video (and PNG frames), at the frames' exact size.
+
+:func:`write_video` encodes with libx264 (crf 18, yuv420p: the pixel format every player
+reads) through PyAV; only when PyAV or its libx264 is missing does it use the ffmpeg binary that
+imageio-ffmpeg ships, with ``macro_block_size=1`` so that nothing is resized to multiples of 16.
+
+yuv420p needs an even width and height. A frame with an odd side is padded by one pixel at the
+bottom and/or right edge (repeating the last row / column), so a 45x77 sequence becomes a
+46x78 video whose top-left 45x77 pixels are the frames; the PNG frames (:func:`write_frames`)
+keep the exact size. The video is written under a temporary name and renamed when complete.
+"""
+
+from __future__ import annotations
+
+import os
+from fractions import Fraction
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from sim2real.errors import UserError
+from sim2real.fileio import atomic_path, atomic_write_image, prepare_output_dir
+
+CRF = 18
+
+
+def _check_frame(frame: np.ndarray, size: tuple[int, int] | None, index: int) -> np.ndarray:
+    a = np.asarray(frame)
+    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 3:
+        raise ValueError(f"frame {index}: expected uint8 (H, W, 3) RGB, got {a.dtype} {a.shape}")
+    if size is not None and a.shape[:2] != size:
+        raise ValueError(f"frame {index} is {a.shape[0]}x{a.shape[1]}, frame 0 is {size[0]}x{size[1]}")
+    return a
+
+
+def pad_even(frame: np.ndarray) -> np.ndarray:
+    """Pad an (H, W, 3) frame by one edge pixel at the bottom / right where H / W is odd."""
+    h, w = frame.shape[:2]
+    if h % 2 == 0 and w % 2 == 0:
+        return np.ascontiguousarray(frame)
+    return np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+
+
+def _pyav_has_libx264() -> bool:
+    try:
+        import av
+    except ImportError:
+        return False
+    return "libx264" in av.codecs_available
+
+
+def _rate(fps: float) -> Fraction:
+    if not (np.isfinite(fps) and 0 < fps <= 1000):
+        raise UserError(f"fps must be in (0, 1000], got {fps}")
+    return Fraction(fps).limit_denominator(1001)
+
+
+def _encode_pyav(frames: Iterator[np.ndarray], first: np.ndarray, tmp: Path, fps: float, crf: int) -> int:
+    import av
+
+    size = first.shape[:2]
+    container = av.open(str(tmp), mode="w")
+    try:
+        stream = container.add_stream("libx264", rate=_rate(fps))
+        stream.width, stream.height = pad_even(first).shape[1], pad_even(first).shape[0]
+        stream.pix_fmt = "yuv420p"
+        stream.options = {"crf": str(crf)}
+        n = 0
+        frame = first
+        while frame is not None:
+            vf = av.VideoFrame.from_ndarray(pad_even(_check_frame(frame, size, n)), format="rgb24")
+            for packet in stream.encode(vf):
+                container.mux(packet)
+            n += 1
+            frame = next(frames, None)
+        for packet in stream.encode():
+            container.mux(packet)
+    finally:
+        container.close()
+    return n
+
+
+def _encode_imageio(frames: Iterator[np.ndarray], first: np.ndarray, tmp: Path, fps: float, crf: int) -> int:
+    import imageio_ffmpeg
+
+    size = first.shape[:2]
+    hp, wp = pad_even(first).shape[:2]
+    writer = imageio_ffmpeg.write_frames(
+        str(tmp), (wp, hp), fps=float(_rate(fps)), codec="libx264", pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
+        quality=None, macro_block_size=1, output_params=["-crf", str(crf)], ffmpeg_log_level="error",
+    )
+    writer.send(None)  # start ffmpeg
+    n = 0
+    try:
+        frame = first
+        while frame is not None:
+            writer.send(pad_even(_check_frame(frame, size, n)))
+            n += 1
+            frame = next(frames, None)
+    finally:
+        writer.close()
+    return n
+
+
+def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: float = 5.0, crf: int = CRF,
+                backend: str = "auto") -> int:
+    """Encode uint8 (H, W, 3) RGB frames as H.264 (libx264, ``crf``, yuv420p) into ``path``
+    (.mp4, .mkv or .mov); returns the number of frames. ``backend``: ``"auto"`` (PyAV, else
+    imageio-ffmpeg), ``"pyav"`` or ``"imageio"``. Odd sizes are padded (module docstring)."""
+    path = Path(path)
+    if backend not in ("auto", "pyav", "imageio"):
+        raise ValueError(f"backend must be 'auto', 'pyav' or 'imageio', got {backend!r}")
+    if backend == "auto":
+        backend = "pyav" if _pyav_has_libx264() else "imageio"
+    if backend == "pyav" and not _pyav_has_libx264():
+        raise UserError("PyAV with libx264 is not available; install 'av' or use backend='imageio'")
+    _rate(fps)
+    it = iter(frames)
+    first = next(it, None)
+    if first is None:
+        raise UserError(f"no frames to write to {path}")
+    first = _check_frame(first, None, 0)
+    encode = _encode_pyav if backend == "pyav" else _encode_imageio
+    with atomic_path(path, suffix=".tmp" + (path.suffix or ".mp4")) as tmp:
+        n = encode(it, first, tmp, fps, crf)
+    return n
+
+
+def read_video_frames(path: str | os.PathLike) -> np.ndarray:
+    """Decode every frame of a video -> uint8 (N, H, W, 3) RGB (for tests and checks)."""
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    except (OSError, av.error.FFmpegError) as e:
+        raise UserError(f"cannot decode video {path}: {e}") from None
+    if not frames:
+        return np.zeros((0, 0, 0, 3), np.uint8)
+    return np.stack(frames)
+
+
+def read_video(path: str | os.PathLike) -> tuple[int, int, int]:
+    """(number of decoded frames, height, width) of a video."""
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            n, h, w = 0, 0, 0
+            for f in container.decode(video=0):
+                n, h, w = n + 1, f.height, f.width
+    except (OSError, av.error.FFmpegError) as e:
+        raise UserError(f"cannot decode video {path}: {e}") from None
+    return n, h, w
+
+
+def write_frames(frames: Iterable[np.ndarray], out_dir: str | os.PathLike) -> list[str]:
+    """Write uint8 (H, W, 3) RGB frames as ``out_dir/000000.png, 000001.png, ...`` (exact size,
+    each file atomic). ``out_dir`` must be new or empty. Returns the file names."""
+    out = prepare_output_dir(out_dir)
+    names, size = [], None
+    for i, frame in enumerate(frames):
+        a = _check_frame(frame, size, i)
+        size = a.shape[:2]
+        name = f"{i:06d}.png"
+        atomic_write_image(out / name, a)
+        names.append(name)
+    return names

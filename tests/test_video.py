@@ -1,0 +1,57 @@
+"""H.264 video and PNG frames: exact sizes, frame counts, small coding error."""
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sim2real.errors import UserError
+from sim2real.inference.video import read_video, read_video_frames, write_frames, write_video
+
+
+def smooth_frames(n, h, w):
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    out = []
+    for t in range(n):
+        r = 128 + 90 * np.sin(xx / w * 2 * np.pi + 0.3 * t)
+        g = 128 + 90 * np.cos(yy / h * 2 * np.pi - 0.2 * t)
+        b = 60 + 100 * (xx + yy) / (h + w)
+        out.append(np.clip(np.stack([r, g, b], -1), 0, 255).astype(np.uint8))
+    return out
+
+
+@pytest.mark.parametrize("backend", ["pyav", "imageio"])
+@pytest.mark.parametrize("h,w", [(48, 80), (45, 77)])
+def test_video_round_trip(tmp_path, backend, h, w):
+    frames = smooth_frames(12, h, w)
+    path = tmp_path / "video.mp4"
+    assert write_video(iter(frames), path, fps=5.0, backend=backend) == 12
+    assert [p.name for p in tmp_path.iterdir()] == ["video.mp4"]  # no temporary file left
+    # Odd sides are padded by one pixel (bottom / right) for yuv420p; even sizes are exact.
+    assert read_video(path) == (12, h + h % 2, w + w % 2)
+    dec = read_video_frames(path)[:, :h, :w]
+    err = np.abs(dec.astype(np.float64) - np.stack(frames)).mean()
+    assert err < 6, err
+
+
+def test_video_fps_and_errors(tmp_path):
+    import av
+
+    path = tmp_path / "v.mp4"
+    write_video(smooth_frames(3, 16, 16), path, fps=5.0)
+    with av.open(str(path)) as c:
+        assert c.streams.video[0].average_rate == 5
+    with pytest.raises(UserError):
+        write_video([], tmp_path / "empty.mp4")
+    with pytest.raises(ValueError):
+        write_video([np.zeros((16, 16, 3), np.uint8), np.zeros((16, 18, 3), np.uint8)], tmp_path / "bad.mp4")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
+
+
+def test_write_frames(tmp_path):
+    frames = smooth_frames(3, 45, 77)
+    names = write_frames(frames, tmp_path / "frames")
+    assert names == ["000000.png", "000001.png", "000002.png"]
+    for name, f in zip(names, frames):
+        assert np.array_equal(np.array(Image.open(tmp_path / "frames" / name)), f)
+    with pytest.raises(UserError):
+        write_frames(frames, tmp_path / "frames")  # not empty any more
