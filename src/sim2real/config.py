@@ -105,12 +105,20 @@ class DataConfig:
     """Horizontal field of view of random simulated views rendered on the fly."""
     workers: int = 2
     """DataLoader worker processes (ray casting and image decoding happen there)."""
+    min_overlap: float = 0.1
+    """Fraction of view i's pixels that must be visible in view j; a pair below it is redrawn
+    (up to 10 draws; then the draw with the largest overlap is used)."""
 
 
 @dataclass
 class TrainConfig:
+    method: str = "ours"
+    """Training variant (engine/method.py): 'ours', 'ours_no_vc' (lambda_vc = 0) or
+    'ours_no_tex_vc' (zeros instead of the neural texture, no L_vc)."""
     iterations: int = 500_000
     checkpoint_every: int = 5_000
+    keep_checkpoints: bool = False
+    """Besides ``last.pt`` keep a ``step_NNNNNNN.pt`` copy of every checkpoint."""
     log_every: int = 100
     image_every: int = 5_000
     seed: int = 0

@@ -9,7 +9,7 @@ import sys
 
 from sim2real.errors import UserError
 
-COMMANDS = ("scene", "render", "demo")
+COMMANDS = ("scene", "render", "realdomain", "train", "translate", "evaluate", "demo")
 """Modules of :mod:`sim2real.cli`, each exposing ``register(subparsers)``."""
 
 

@@ -1,0 +1,92 @@
+"""``sim2real train``: train textures + translator on simulated scenes and real images.
+
+    sim2real train --preset {paper,small,tiny} --scenes DIR... --real DIR --out RUN
+                   [--iterations N] [--checkpoint-every N] [--device {auto,cpu,cuda}]
+                   [--set section.field=value ...] [--config YAML]
+    sim2real train --out RUN --resume [--iterations N] [--set ...]
+
+Multi-GPU / multi-node: start it with ``torchrun`` (docs/training.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from sim2real.cli.args import positive_int
+
+
+def register(sub) -> None:
+    p = sub.add_parser("train", help="train neural textures and the translator (docs/training.md)")
+    p.add_argument("--preset", help="configuration preset: paper, small or tiny")
+    p.add_argument("--config", help="YAML configuration (e.g. a run's config.yaml) instead of a preset")
+    p.add_argument("--scenes", nargs="+", metavar="DIR",
+                   help="scene folders (fresh random views are ray-cast) or views folders (cached G-buffers)")
+    p.add_argument("--real", metavar="DIR", help="folder of real images (png/jpg, searched recursively)")
+    p.add_argument("--out", required=True, metavar="RUN", help="run folder (new and empty, or the run to resume)")
+    p.add_argument("--iterations", type=positive_int, help="total training iterations")
+    p.add_argument("--checkpoint-every", type=positive_int, help="iterations between checkpoints")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="where to train (default: config, auto)")
+    p.add_argument("--set", dest="overrides", action="append", nargs="+", default=[], metavar="KEY=VALUE",
+                   help="override any config field, e.g. --set loss.vc=10 data.workers=4")
+    p.add_argument("--resume", action="store_true", help="continue RUN from RUN/checkpoints/last.pt")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def build_config(args: argparse.Namespace, base=None):
+    """The effective config: preset / YAML / checkpoint config, then the direct flags, then --set."""
+    from sim2real.config import load_yaml, override, preset
+
+    if base is not None:
+        cfg = base
+    elif args.config:
+        cfg = load_yaml(args.config)
+    else:
+        cfg = preset(args.preset)
+    sets = [s for group in args.overrides for s in group]
+    if args.iterations is not None:
+        sets.insert(0, f"iterations={args.iterations}")
+    if args.checkpoint_every is not None:
+        sets.insert(0, f"checkpoint_every={args.checkpoint_every}")
+    if args.device is not None:
+        sets.insert(0, f"device={args.device}")
+    return override(cfg, sets)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from sim2real.config import TrainConfig, from_dict
+    from sim2real.engine import checkpoint as ckpt
+    from sim2real.engine.trainer import Trainer
+    from sim2real.errors import UserError
+
+    state = path = None
+    if args.resume:
+        if args.preset or args.config:
+            raise UserError("--resume takes the run's configuration from its checkpoint; "
+                            "leave out --preset/--config (change fields with --set)")
+        path = Path(args.out) / "checkpoints" / ckpt.LAST
+        if not path.is_file():
+            raise UserError(f"nothing to resume: no checkpoint at {path}")
+        state = ckpt.load_checkpoint(path)
+        cfg = build_config(args, from_dict(TrainConfig, state["config"]))
+    else:
+        if not args.preset and not args.config:
+            raise UserError("give --preset (paper, small or tiny) or --config, or --resume a run")
+        if args.preset and args.config:
+            raise UserError("give either --preset or --config, not both")
+        if not args.scenes:
+            raise UserError("no simulated scenes given (--scenes DIR...)")
+        if not args.real:
+            raise UserError("no real image folder given (--real DIR)")
+        cfg = build_config(args)
+    trainer = Trainer(cfg, scenes=args.scenes, real=args.real, out=args.out, resume=path,
+                      progress=not args.no_progress, resume_state=state)
+    try:
+        last = trainer.train()
+    finally:
+        trainer.close()
+    if trainer.dist.is_main:
+        print(f"training finished at step {trainer.step}; checkpoint {last}")
+    return 0

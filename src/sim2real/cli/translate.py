@@ -1,0 +1,49 @@
+"""``sim2real translate``: render a camera trajectory (or a views folder) through a trained run.
+
+    sim2real translate RUN --scene SCENE --trajectory FILE --out DIR [--batch B] [--device auto|cpu|cuda]
+                       [--checkpoint PATH] [--fps F] [--workers N]
+    sim2real translate RUN --views VIEWS_DIR --out DIR [...]
+
+Writes DIR/frames/000000.png ..., DIR/video.mp4, DIR/ground_truth/ and DIR/translate.json
+(docs/formats.md, "Translate output").
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from sim2real.cli.args import positive_float, positive_int
+
+
+def register(sub) -> None:
+    p = sub.add_parser("translate", help="translate a trajectory or views folder into video + ground truth")
+    p.add_argument("run", metavar="RUN", help="training run folder (uses RUN/checkpoints/last.pt)")
+    p.add_argument("--scene", metavar="SCENE", help="scene folder (or the name of a scene the run was trained on)")
+    p.add_argument("--trajectory", metavar="FILE", help="trajectory file (sim2real scene trajectory / TUM rows)")
+    p.add_argument("--views", metavar="VIEWS_DIR", help="a views folder (sim2real render) instead of --scene/--trajectory")
+    p.add_argument("--out", required=True, metavar="DIR", help="new or empty output folder")
+    p.add_argument("--batch", type=positive_int, default=8, help="frames per network call (default 8)")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    p.add_argument("--checkpoint", metavar="PATH", help="checkpoint file instead of RUN/checkpoints/last.pt")
+    p.add_argument("--fps", type=positive_float, help="video frame rate (default: the trajectory's, else 5)")
+    p.add_argument("--workers", type=positive_int,
+                   help="ray-casting processes (default: 1 for short or small trajectories, else up to 4)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from sim2real.errors import UserError
+    from sim2real.inference.translate import load_run, trajectory_source, translate_sequence, views_source
+
+    if args.views and (args.scene or args.trajectory):
+        raise UserError("give either --views VIEWS_DIR or --scene SCENE --trajectory FILE, not both")
+    if not args.views and not (args.scene and args.trajectory):
+        raise UserError("give --scene SCENE and --trajectory FILE (or --views VIEWS_DIR)")
+    model = load_run(args.run, args.device, args.checkpoint)
+    source = views_source(model, args.views) if args.views else trajectory_source(model, args.scene, args.trajectory)
+    m = translate_sequence(model, source, args.out, batch=args.batch, fps=args.fps, workers=args.workers,
+                           progress=not args.no_progress)
+    print(f"{m['frames']} frames of '{m['scene']}' ({m['width']}x{m['height']}, {m['fps']:g} fps) written to {args.out}: "
+          f"frames/, video.mp4, ground_truth/")
+    return 0

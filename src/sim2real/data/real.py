@@ -1,0 +1,106 @@
+"""Unlabeled real images (domain B): a folder searched recursively for PNG/JPEG files.
+
+Each training iteration takes one image, resizes it so that it covers ``height x width``
+times a random factor in ``[scale_min, scale_max]`` (aspect ratio kept), and crops a random
+``height x width`` window, as the paper does. Images of any PIL mode are converted to RGB:
+grey (L, LA, 16-bit I/I;16) is repeated over the three channels, palettes are expanded, and
+an alpha channel is dropped (the colour values are kept as they are, not composited).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from sim2real.errors import UserError
+
+EXTENSIONS = (".png", ".jpg", ".jpeg")
+
+
+def list_images(folder: str | os.PathLike) -> list[Path]:
+    """Sorted image files under ``folder`` (recursive, extensions case-insensitive)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise UserError(f"real image folder {folder} does not exist or is not a directory")
+    files = sorted(p for p in folder.rglob("*") if p.suffix.lower() in EXTENSIONS and p.is_file())
+    if not files:
+        raise UserError(f"no real images (png/jpg) found under {folder}")
+    return files
+
+
+def verify_images(files: list[Path]) -> None:
+    """Open every file's header and check its structure (PIL ``verify``: no full decode);
+    the first unreadable one is named in a UserError."""
+    from PIL import Image
+
+    for path in files:
+        try:
+            with Image.open(path) as im:
+                im.verify()
+        except Exception as e:  # PIL raises many types for damaged files
+            raise UserError(f"cannot read real image {path}: {e}") from None
+
+
+def load_rgb(path: str | os.PathLike) -> np.ndarray:
+    """Decode an image as uint8 (H, W, 3) RGB, converting grey, palette and alpha modes."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+            return to_rgb(im)
+    except UserError:
+        raise
+    except Exception as e:
+        raise UserError(f"cannot read real image {path}: {e}") from None
+
+
+def to_rgb(im) -> np.ndarray:
+    """PIL image of any mode -> uint8 (H, W, 3)."""
+    if im.mode in ("I", "I;16", "I;16B", "I;16L", "I;16N", "F"):
+        a = np.asarray(im, dtype=np.float64)
+        scale = 1.0 if im.mode == "F" else 65535.0
+        grey = np.clip(a / scale, 0.0, 1.0) * 255.0 + 0.5
+        return np.repeat(grey.astype(np.uint8)[..., None], 3, axis=2)
+    if im.mode == "P" and "transparency" in im.info:
+        im = im.convert("RGBA")
+    if im.mode != "RGB":
+        im = im.convert("RGB")
+    return np.asarray(im, dtype=np.uint8)
+
+
+def random_resized_crop(image: np.ndarray, height: int, width: int, scale_min: float, scale_max: float,
+                        rng: np.random.Generator) -> np.ndarray:
+    """Resize ``image`` (h, w, 3) uint8 by ``max(height / h, width / w) * U[scale_min, scale_max]``
+    (bilinear, area-filtered when shrinking) and crop a random ``height x width`` window."""
+    from PIL import Image
+
+    h, w = image.shape[:2]
+    factor = max(height / h, width / w) * float(rng.uniform(scale_min, scale_max))
+    new_h, new_w = max(height, round(h * factor)), max(width, round(w * factor))
+    if (new_h, new_w) != (h, w):
+        image = np.asarray(Image.fromarray(image).resize((new_w, new_h), Image.BILINEAR))
+    top = int(rng.integers(0, new_h - height + 1))
+    left = int(rng.integers(0, new_w - width + 1))
+    return image[top : top + height, left : left + width]
+
+
+class RealImages:
+    """The real-image pool: file list checked at construction, random crops on demand."""
+
+    def __init__(self, folder: str | os.PathLike, verify: bool = True):
+        self.folder = Path(folder)
+        self.files = list_images(folder)
+        if verify:
+            verify_images(self.files)
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def sample(self, rng: np.random.Generator, height: int, width: int, scale_min: float, scale_max: float) -> np.ndarray:
+        """A random crop as float32 (3, height, width) in [-1, 1]."""
+        path = self.files[int(rng.integers(0, len(self.files)))]
+        crop = random_resized_crop(load_rgb(path), height, width, scale_min, scale_max, rng)
+        return (crop.astype(np.float32).transpose(2, 0, 1) / 127.5) - 1.0

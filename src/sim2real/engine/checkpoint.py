@@ -1,0 +1,120 @@
+"""Training checkpoints: complete, atomic, loadable with ``torch.load(weights_only=True)``.
+
+A checkpoint is one ``torch.save`` dict:
+
+=================  =================================================================
+key                content
+=================  =================================================================
+``format``         ``"sim2real-train/1"``
+``step``           iterations completed; a resumed run continues with this step
+``config``         the effective TrainConfig as a plain dict
+``method``         the variant name (engine/method.py)
+``inputs``         ``{"scenes": [...], "real": ...}`` as given on the command line
+``scenes``         per scene: name, texture key, scene_dir, cached view files or None
+``gen``, ``dis``   state dicts of the generator stage (translator + all neural textures)
+                   and the discriminator stage
+``optimizers``     Adam state dicts by group name ('net', 'tex', 'dis')
+``schedulers``     StepLR state dicts by group name
+``rng``            per rank: python, numpy, torch CPU (and CUDA) generator states
+``loss_schedule``  e.g. the current view-consistency weight (a function of ``step``)
+``world_size``     ranks that trained it
+=================  =================================================================
+
+The data stream is derived from (seed, rank, step) (data/datasets.py), so no loader state
+is needed. Files are written to a temporary name, flushed, fsynced and renamed over
+``last.pt``: a reader (or a run killed by SIGKILL at any moment) sees either the previous
+complete checkpoint or the new one.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sim2real.errors import UserError
+from sim2real.fileio import atomic_path
+
+FORMAT = "sim2real-train/1"
+LAST = "last.pt"
+
+
+def step_name(step: int) -> str:
+    return f"step_{step:07d}.pt"
+
+
+def save_checkpoint(path: str | os.PathLike, state: dict) -> Path:
+    """Atomically write ``state`` to ``path``."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            torch.save(state, f)
+            f.flush()
+            os.fsync(f.fileno())
+    try:  # make the rename itself durable
+        fd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+    except OSError:
+        pass
+    return path
+
+
+def keep_copy(path: Path, step: int) -> Path:
+    """Also keep the checkpoint at ``path`` as ``step_NNNNNNN.pt`` (a hard link when possible)."""
+    dst = path.parent / step_name(step)
+    if dst.exists():
+        dst.unlink()
+    try:
+        os.link(path, dst)
+    except OSError:
+        import shutil
+
+        with atomic_path(dst) as tmp:
+            shutil.copyfile(path, tmp)
+    return dst
+
+
+def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"no checkpoint at {path}")
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as e:
+        raise UserError(f"cannot read checkpoint {path}: {type(e).__name__}: {e}") from None
+    if not isinstance(state, dict) or state.get("format") != FORMAT:
+        raise UserError(f"{path} is not a sim2real training checkpoint")
+    return state
+
+
+def rng_state() -> dict:
+    """Python, numpy and torch generator states as weights_only-loadable values."""
+    py = random.getstate()
+    kind, keys, pos, has_gauss, gauss = np.random.get_state()
+    state = {
+        "python": [py[0], list(py[1]), py[2]],
+        "numpy": {"kind": kind, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                  "has_gauss": int(has_gauss), "gauss": float(gauss)},
+        "torch": torch.get_rng_state(),
+    }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_rng_state(state: dict) -> None:
+    py = state["python"]
+    random.setstate((py[0], tuple(py[1]), py[2]))
+    n = state["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["gauss"]))
+    torch.set_rng_state(state["torch"].cpu())
+    if "cuda" in state and torch.cuda.is_available():
+        cuda = [s.cpu() for s in state["cuda"]]
+        if len(cuda) == torch.cuda.device_count():
+            torch.cuda.set_rng_state_all(cuda)

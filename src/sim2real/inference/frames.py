@@ -1,0 +1,129 @@
+"""G-buffers of a frame sequence, streamed: ray casting in order, in-process or in a process pool,
+and a disk-backed sequence so that long trajectories never sit in memory at once.
+
+This module imports no torch: the spawned ray-casting workers load only numpy, trimesh and Embree.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable, Iterable, Iterator, Sequence
+
+import numpy as np
+
+from sim2real.render.gbuffer import KEYS, GBuffer
+
+POOL_MIN_RAYS = 32 * 256 * 512
+"""Below this many rays in all (about 2-3 s of casting on one core) the rays are cast in-process:
+starting spawned workers (each loads the scene and builds its BVH) costs about as much."""
+MAX_AUTO_WORKERS = 4
+
+_WORKER: dict = {}
+
+
+def _init_caster(scene_dir: str) -> None:
+    from sim2real.render.raycast import RayCaster
+    from sim2real.scene.scene import Scene
+
+    _WORKER["caster"] = RayCaster(Scene.load(scene_dir))
+
+
+def _render(camera) -> GBuffer:
+    return _WORKER["caster"].render(camera)
+
+
+def auto_workers(cameras: Sequence) -> int:
+    """Ray-casting processes for ``cameras``: 1 (in-process) for short or small sequences or on
+    one core, else ``min(cores, 4)``."""
+    cores = os.cpu_count() or 1
+    rays = sum(int(c.height) * int(c.width) for c in cameras)
+    if rays < POOL_MIN_RAYS or cores < 2 or len(cameras) < 4:
+        return 1
+    return min(cores, MAX_AUTO_WORKERS, len(cameras))
+
+
+def iter_gbuffers(scene_dir: str | os.PathLike, cameras: Sequence, workers: int | None = None, chunk: int = 8,
+                  caster=None) -> Iterator[GBuffer]:
+    """Ray-cast ``cameras`` of the scene at ``scene_dir`` and yield their G-buffers in order.
+
+    ``workers`` = 1 casts in this process (reusing ``caster`` when given); more starts a spawn pool
+    of that many processes (one Embree caster each). The pool renders chunk k + 1 (``chunk``
+    frames) while the caller consumes chunk k, so at most two chunks are in flight: memory stays
+    bounded however long the trajectory. ``None`` picks :func:`auto_workers`.
+    """
+    cameras = list(cameras)
+    workers = auto_workers(cameras) if workers is None else max(1, int(workers))
+    if workers <= 1 or len(cameras) <= 1:
+        if caster is None:
+            from sim2real.render.raycast import RayCaster
+            from sim2real.scene.scene import Scene
+
+            caster = RayCaster(Scene.load(scene_dir))
+        for cam in cameras:
+            yield caster.render(cam)
+        return
+    import multiprocessing as mp
+
+    chunk = max(int(chunk), 2 * workers)
+    chunks = [cameras[i:i + chunk] for i in range(0, len(cameras), chunk)]
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(workers, initializer=_init_caster, initargs=(str(scene_dir),)) as pool:
+        pending = pool.map_async(_render, chunks[0], chunksize=1)
+        for k in range(len(chunks)):
+            done = pending.get()
+            if k + 1 < len(chunks):
+                pending = pool.map_async(_render, chunks[k + 1], chunksize=1)
+            yield from done
+
+
+def iter_view_files(files: Iterable[str | os.PathLike]) -> Iterator[GBuffer]:
+    for path in files:
+        yield GBuffer.load(path)
+
+
+def chunked(items: Iterable, size: int) -> Iterator[list]:
+    buf: list = []
+    for item in items:
+        buf.append(item)
+        if len(buf) >= size:
+            yield buf
+            buf = []
+    if buf:
+        yield buf
+
+
+def save_scratch(g: GBuffer, path: str | os.PathLike) -> None:
+    """Uncompressed ``.npz`` of a G-buffer (fast to write and read; for temporary files)."""
+    with open(path, "wb") as f:
+        np.savez(f, **{k: (np.array(g.classes, dtype=str) if k == "classes" else getattr(g, k)) for k in KEYS})
+
+
+class LazyGBuffers(Sequence):
+    """A read-only sequence of G-buffers stored as view files, loaded on each access.
+
+    ``on_first_access(i)`` is called the first time index ``i`` is read (progress reporting).
+    Thread-safe enough for :func:`sim2real.inference.export.export_ground_truth`'s thread pool:
+    every access loads its own copy.
+    """
+
+    def __init__(self, paths: Sequence[str | os.PathLike], on_first_access: Callable[[int], None] | None = None):
+        self.paths = [Path(p) for p in paths]
+        self._seen: set[int] = set()
+        self._cb = on_first_access
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError(i)
+        g = GBuffer.load(self.paths[i])
+        if self._cb is not None and i not in self._seen:
+            self._seen.add(i)
+            self._cb(i)
+        return g

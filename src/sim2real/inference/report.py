@@ -1,0 +1,271 @@
+"""The evaluation report: ``report.md`` (plots as SVG files, samples as PNG files beside it) and a
+self-contained ``report.html`` (inline SVG plots, sample images embedded as data URIs).
+
+Plots are hand-written SVG (no plotting library is a dependency of the project).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from pathlib import Path
+from typing import Sequence
+
+from sim2real.fileio import atomic_write_text
+
+COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f")
+
+
+# --- SVG line plots ------------------------------------------------------------------------------
+
+
+def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        hi = lo + 1.0
+    raw = (hi - lo) / max(n, 1)
+    mag = 10 ** math.floor(math.log10(raw))
+    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw)
+    start = math.floor(lo / step) * step
+    ticks, t = [], start
+    while t <= hi + 1e-9 * step:
+        ticks.append(round(t, 10))
+        t += step
+    if ticks[-1] < hi - 1e-9 * step:  # the axis ends on a tick above the data
+        ticks.append(round(ticks[-1] + step, 10))
+    return ticks
+
+
+def _fmt_tick(v: float) -> str:
+    return f"{v:g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.1e}"
+
+
+def svg_line_plot(series: dict[str, Sequence[tuple[float, float | None]]], title: str, xlabel: str, ylabel: str,
+                  width: int = 560, height: int = 320, y_min: float | None = None, y_max: float | None = None,
+                  y_percent: bool = False) -> str:
+    """A line plot as an SVG string. ``series``: name -> [(x, y or None)]; None breaks the line."""
+    pts = [(x, y) for s in series.values() for x, y in s if y is not None and math.isfinite(y)]
+    ml, mr, mt, mb = 62, 16, 30, 46
+    legend_h = 16 * len(series)
+    H = height + legend_h
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{H}" viewBox="0 0 {width} {H}" '
+           f'font-family="sans-serif" font-size="11">',
+           f'<rect width="{width}" height="{H}" fill="white"/>',
+           f'<text x="{width / 2:.1f}" y="18" text-anchor="middle" font-size="13">{html.escape(title)}</text>']
+    if not pts:
+        out.append(f'<text x="{width / 2:.1f}" y="{height / 2:.1f}" text-anchor="middle" fill="#888">no data</text></svg>')
+        return "\n".join(out)
+    xs = [p[0] for p in pts]
+    ys = [p[1] for p in pts]
+    x0, x1 = min(xs), max(xs)
+    if x1 == x0:
+        x0, x1 = x0 - 1, x1 + 1
+    lo = min(ys) if y_min is None else y_min
+    hi = max(ys) if y_max is None else y_max
+    if hi <= lo:
+        hi = lo + (abs(lo) or 1.0)
+    yt = _nice_ticks(lo, hi)
+    lo, hi = min(lo, yt[0]), max(hi, yt[-1])
+    pw, ph = width - ml - mr, height - mt - mb
+
+    def X(x: float) -> float:
+        return ml + (x - x0) / (x1 - x0) * pw
+
+    def Y(y: float) -> float:
+        return mt + ph - (y - lo) / (hi - lo) * ph
+
+    out.append(f'<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>')
+    for t in yt:
+        label = f"{100 * t:g}%" if y_percent else _fmt_tick(t)
+        out.append(f'<line x1="{ml}" y1="{Y(t):.1f}" x2="{ml + pw}" y2="{Y(t):.1f}" stroke="#ddd"/>')
+        out.append(f'<text x="{ml - 5}" y="{Y(t) + 4:.1f}" text-anchor="end">{label}</text>')
+    for t in _nice_ticks(x0, x1, 10):
+        if x0 - 1e-9 <= t <= x1 + 1e-9:
+            out.append(f'<line x1="{X(t):.1f}" y1="{mt + ph}" x2="{X(t):.1f}" y2="{mt + ph + 4}" stroke="#444"/>')
+            out.append(f'<text x="{X(t):.1f}" y="{mt + ph + 16}" text-anchor="middle">{_fmt_tick(t)}</text>')
+    out.append(f'<text x="{ml + pw / 2:.1f}" y="{mt + ph + 34}" text-anchor="middle">{html.escape(xlabel)}</text>')
+    out.append(f'<text transform="translate(14 {mt + ph / 2:.1f}) rotate(-90)" text-anchor="middle">{html.escape(ylabel)}</text>')
+    for k, (name, s) in enumerate(series.items()):
+        c = COLOURS[k % len(COLOURS)]
+        runs, cur = [], []
+        for x, y in s:
+            if y is None or not math.isfinite(y):
+                if cur:
+                    runs.append(cur)
+                cur = []
+            else:
+                cur.append((X(x), Y(y)))
+        if cur:
+            runs.append(cur)
+        for r in runs:
+            if len(r) > 1:
+                d = " ".join(f"{a:.1f},{b:.1f}" for a, b in r)
+                out.append(f'<polyline points="{d}" fill="none" stroke="{c}" stroke-width="1.8"/>')
+            for a, b in r:
+                out.append(f'<circle cx="{a:.1f}" cy="{b:.1f}" r="2.4" fill="{c}"/>')
+        ly = height + 4 + 16 * k
+        out.append(f'<line x1="{ml}" y1="{ly}" x2="{ml + 20}" y2="{ly}" stroke="{c}" stroke-width="2"/>')
+        out.append(f'<text x="{ml + 26}" y="{ly + 4}">{html.escape(name)}</text>')
+    out.append("</svg>")
+    return "\n".join(out)
+
+
+# --- formatting ----------------------------------------------------------------------------------
+
+
+def _num(v, digits: int = 4) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, float):
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+def _orb_cell(e: dict) -> str:
+    if e["pairs"] == 0:
+        return "n/a (no pairs)"
+    acc = "n/a" if e["accuracy"] is None else f"{100 * e['accuracy']:.1f}%"
+    return f"{acc} ({e['mean_correct']:.1f})"
+
+
+def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
+    """The report as neutral blocks: ('h', level, text) ('p', text) ('table', header, rows)
+    ('plot', file, svg, caption) ('img', caption, rel) ('pre', text)."""
+    r = m["reasons"]
+    run = m["run"]
+    b: list[tuple] = [("h", 1, "sim2real evaluation")]
+    b.append(("p", f"Run {run['dir']} — checkpoint {run['checkpoint']} (step {run['step']}, method '{run['method']}'), "
+                   f"evaluated on {run['device']} at the training size {run['train_height']}×{run['train_width']}. "
+                   f"Scenes: {', '.join(s['name'] for s in m['inputs']['scenes'])}. "
+                   f"Real images: {m['inputs']['real']['dir']} ({m['inputs']['real']['images_used']} used of "
+                   f"{m['inputs']['real']['images']}; {m['inputs']['real']['labelled']} labelled)."))
+
+    b.append(("h", 2, "Realism"))
+    fk = m["fid_kid"]
+    kid = "n/a" if m["kid_mean"] is None else f"{m['kid_mean']:.4f} ± {m['kid_std']:.4f}"
+    rows = [
+        ["FID", _num(m["fid"]), r["fid"] or f"{fk['n_gen']} generated vs {fk['n_real']} real images, FID Inception weights {fk['weights']}"],
+        ["KID (mean ± std)", kid, r["fid"] or f"{fk['kid_subsets']} subsets of {fk['kid_subset_size']}"],
+        ["Dice, translated views", _num(m["dice"]), r["dice"] or
+         f"liver U-Net trained on {m['dice_info']['n_train']} labelled real images, evaluated on {m['dice_info']['n_eval']} views"],
+        ["Dice, reference rendering a_ref (untranslated)", _num(m["dice_a_ref"]), r["dice"] or "the same segmenter on the simulated input"],
+        ["Dice, its own real training images (fit check)", _num(m["dice_real_train"]), r["dice"] or "not held out"],
+        ["proxy colour+texture distance (**not FID**)", _num(m["proxy"]["proxy_colour_texture_distance"]),
+         f"colour {m['proxy']['proxy_colour_distance']:.4f} + texture {m['proxy']['proxy_texture_distance']:.4f}; "
+         f"a cheap stand-in, 0 for identical statistics"],
+    ]
+    if m["fid"] is None:
+        b.append(("p", f"FID and KID are not reported: {r['fid']}"))
+    b.append(("table", ["metric", "value", "note"], rows))
+
+    b.append(("h", 2, "Temporal consistency"))
+    b.append(("p", "ORB-k: accuracy of cross-checked ORB matches between frames k apart (correct when the two 3D points "
+                   f"are < {m['settings']['threshold_mm']:g} mm apart), with the mean number of correct matches per pair in "
+                   "brackets. OF: mean absolute difference between the geometric flow and Farnebäck flow of consecutive "
+                   "translated frames over visible pixels, in pixels (lower is better)."))
+    rows = [[f"ORB-{k}", _orb_cell(m["orb"][k]), _orb_cell(m["revisit"]["orb"][k]), str(m["orb"][k]["pairs"])] for k in m["orb"]]
+    rows.append(["OF error (px)", _num(m["of_error"]), _num(m["revisit"]["of_error"]), ""])
+    b.append(("table", ["metric", "forward", "revisit (1..T, T..1)", "pairs"], rows))
+    notes = [f"{k}: {v}" for k, v in r.items() if v and k in ("of_error", "orb", "revisit")]
+    if notes:
+        b.append(("p", "Not computable: " + " | ".join(notes)))
+    b.append(("p", f"Revisit protocol: backward half {m['revisit']['backward_frames']}; for a time-independent "
+                   "model it equals the forward metric."))
+    rows = []
+    for name, s in m["per_scene"].items():
+        rows.append([name, str(s["frames"]), _num(s["of_error"])] + [_orb_cell(s["orb"][k]) for k in s["orb"]])
+    b.append(("table", ["scene", "frames", "OF error"] + [f"ORB-{k}" for k in m["orb"]], rows))
+
+    ks = [int(k) for k in m["orb_curve"]]
+    acc = {"all scenes": [(k, m["orb_curve"][str(k)]["accuracy"]) for k in ks]}
+    cor = {"all scenes": [(k, m["orb_curve"][str(k)]["mean_correct"]) for k in ks]}
+    if len(m["per_scene"]) > 1:
+        for name, s in m["per_scene"].items():
+            acc[name] = [(int(k), e["accuracy"]) for k, e in s["orb_curve"].items()]
+            cor[name] = [(int(k), e["mean_correct"]) for k, e in s["orb_curve"].items()]
+    b.append(("h", 3, "ORB-k curve"))
+    b.append(("plot", "plots/orb_accuracy.svg", svg_line_plot(acc, "ORB-k accuracy", "k (frames apart)", "accuracy",
+                                                               y_min=0.0, y_max=1.0, y_percent=True), "ORB-k accuracy"))
+    b.append(("plot", "plots/orb_correct.svg", svg_line_plot(cor, "Correct ORB matches per pair", "k (frames apart)",
+                                                              "correct matches / pair", y_min=0.0), "correct matches per pair"))
+    of = {name: [(t, e) for t, e in enumerate(s["of_error_per_pair"])] for name, s in m["per_scene"].items()}
+    b.append(("plot", "plots/of_error.svg", svg_line_plot(of, "OF error per frame pair", "frame t (pair t, t+1)",
+                                                           "OF error (px)", y_min=0.0), "OF error per frame pair"))
+
+    if samples:
+        b.append(("h", 2, "Samples"))
+        for caption, rel in samples.items():
+            b.append(("img", caption, rel))
+    b.append(("h", 2, "Settings"))
+    b.append(("pre", json.dumps({"settings": m["settings"], "seconds": m["seconds"]}, indent=2)))
+    return b
+
+
+def _md(blocks: list[tuple]) -> str:
+    lines: list[str] = []
+    for blk in blocks:
+        kind = blk[0]
+        if kind == "h":
+            lines += ["#" * blk[1] + " " + blk[2], ""]
+        elif kind == "p":
+            lines += [blk[1], ""]
+        elif kind == "table":
+            header, rows = blk[1], blk[2]
+            lines.append("| " + " | ".join(header) + " |")
+            lines.append("|" + "---|" * len(header))
+            for row in rows:
+                lines.append("| " + " | ".join(str(c).replace("|", "\\|") for c in row) + " |")
+            lines.append("")
+        elif kind == "plot":
+            lines += [f"![{blk[3]}]({blk[1]})", ""]
+        elif kind == "img":
+            lines += [blk[1], "", f"![{blk[1]}]({blk[2]})", ""]
+        elif kind == "pre":
+            lines += ["```json", blk[1], "```", ""]
+    return "\n".join(lines)
+
+
+def _inline_md(text: str) -> str:
+    """html-escape, keeping **bold**."""
+    parts = html.escape(text).split("**")
+    return "".join(f"<b>{p}</b>" if i % 2 else p for i, p in enumerate(parts))
+
+
+def _html(blocks: list[tuple], out: Path) -> str:
+    body: list[str] = []
+    for blk in blocks:
+        kind = blk[0]
+        if kind == "h":
+            body.append(f"<h{blk[1]}>{html.escape(blk[2])}</h{blk[1]}>")
+        elif kind == "p":
+            body.append(f"<p>{_inline_md(blk[1])}</p>")
+        elif kind == "table":
+            head = "".join(f"<th>{html.escape(h)}</th>" for h in blk[1])
+            rows = "".join("<tr>" + "".join(f"<td>{_inline_md(str(c))}</td>" for c in row) + "</tr>" for row in blk[2])
+            body.append(f"<table><thead><tr>{head}</tr></thead><tbody>{rows}</tbody></table>")
+        elif kind == "plot":
+            body.append(f'<figure>{blk[2]}</figure>')
+        elif kind == "img":
+            data = base64.b64encode((out / blk[2]).read_bytes()).decode("ascii")
+            body.append(f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(blk[1])}">'
+                        f"<figcaption>{html.escape(blk[1])}</figcaption></figure>")
+        elif kind == "pre":
+            body.append(f"<pre>{html.escape(blk[1])}</pre>")
+    style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
+             "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;text-align:left}"
+             "th{background:#f3f3f3}figure{margin:1em 0}img{max-width:100%;image-rendering:pixelated}"
+             "pre{background:#f6f6f6;padding:1em;overflow:auto}")
+    return ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>sim2real evaluation</title>"
+            f"<style>{style}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
+
+
+def write_report(metrics: dict, out: str | Path, samples: dict[str, str]) -> None:
+    """Write ``report.md`` (+ ``plots/*.svg``) and the self-contained ``report.html`` into ``out``."""
+    out = Path(out)
+    blocks = _blocks(metrics, samples)
+    for blk in blocks:
+        if blk[0] == "plot":
+            atomic_write_text(out / blk[1], blk[2] + "\n")
+    atomic_write_text(out / "report.md", _md(blocks))
+    atomic_write_text(out / "report.html", _html(blocks, out))

@@ -1,0 +1,408 @@
+"""Trained run -> translated frames: the reusable model API and ``sim2real translate``.
+
+:func:`load_run` restores the generator side of a training run (translator + one neural texture
+per scene) from ``RUN/checkpoints/last.pt`` (or a given checkpoint) and returns a
+:class:`TrainedModel`. Its :meth:`TrainedModel.translate_gbuffers` turns G-buffers of one of the
+run's scenes into uint8 RGB frames exactly as the training computed ``b_hat`` for view i:
+
+    x_a = cat(a_tex, a_ref)        a_tex = Method.a_tex (triplanar texture projection, tanh)
+    b_hat = G_B(E_A(x_a))          a_ref = reference rendering in [-1, 1]
+
+in eval mode under ``torch.inference_mode``; on CUDA with bf16 autocast (when the run's
+``amp`` is on) and channels-last images and weights, on the CPU in fp32. Frames are batched;
+each frame depends only on its own view (instance norm is per sample), so the model is
+time-independent: the same view always gives the same frame (bit-identical for a given batch
+size and device: every network call gets exactly ``batch`` samples, see
+:meth:`TrainedModel.translate_gbuffers`). Sides that are not multiples of
+``2**generator.downsamplings`` are padded (edge replicate) for the networks and cropped back.
+
+:func:`translate_sequence` is the command: it streams a trajectory (ray-cast in chunks,
+in-process or in a process pool) or a views folder through the model and writes
+``frames/``, ``video.mp4``, ``ground_truth/`` and ``translate.json`` (docs/formats.md,
+"Translate output").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from sim2real.errors import UserError
+from sim2real.render.gbuffer import GBuffer
+
+FORMAT = "sim2real-translate/1"
+DEFAULT_BATCH = 8
+
+
+@dataclass
+class SceneInfo:
+    """A scene the run was trained on."""
+
+    name: str
+    key: str
+    """Texture key in the generator's ModuleDict."""
+    index: int
+    """Index into the run's scene sources (``batch['scene']``)."""
+    scene_dir: Path | None
+    """Where the scene was when the run was trained (None if unknown)."""
+    classes: tuple[str, ...] | None
+    """Class of each object, from that scene.json when it is still there."""
+    num_objects: int | None
+    """Objects of the neural texture (None for the no-texture ablation)."""
+
+
+def _scene_classes(scene_dir: Path | None) -> tuple[str, ...] | None:
+    if scene_dir is None:
+        return None
+    try:
+        spec = json.loads((scene_dir / "scene.json").read_text())
+        return tuple(str(o["class"]) for o in spec["objects"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+class TrainedModel:
+    """The generator side of a trained run, ready for inference (see the module docstring)."""
+
+    time_independent = True
+    """Each frame depends only on its own view: a revisited view is translated identically."""
+
+    def __init__(self, cfg, method, gen, device: torch.device, scenes: list[SceneInfo], checkpoint: Path, step: int):
+        self.cfg = cfg
+        self.method = method
+        self.gen = gen
+        self.device = device
+        self.cuda = device.type == "cuda"
+        self.amp = self.cuda and bool(cfg.amp)
+        self.infos = {s.name: s for s in scenes}
+        self.checkpoint = checkpoint
+        self.step = step
+        self.multiple = 2 ** cfg.generator.downsamplings
+
+    @property
+    def scenes(self) -> list[str]:
+        """Names of the scenes the run was trained on (and has textures for)."""
+        return list(self.infos)
+
+    @property
+    def train_size(self) -> tuple[int, int]:
+        """(height, width) the run was trained at."""
+        return self.cfg.data.height, self.cfg.data.width
+
+    def scene(self, name: str) -> SceneInfo:
+        if name not in self.infos:
+            raise UserError(f"the run was not trained on scene '{name}'; it knows: {', '.join(self.scenes)}")
+        return self.infos[name]
+
+    def check_classes(self, name: str, classes: Sequence[str], where: str = "") -> None:
+        """Refuse G-buffers whose objects do not match the scene's texture."""
+        info = self.scene(name)
+        classes = tuple(classes)
+        src = f" ({where})" if where else ""
+        if info.classes is not None and classes != info.classes:
+            raise UserError(f"scene '{name}'{src} has objects of classes {list(classes)}, but the run was trained on "
+                            f"a scene '{name}' with {list(info.classes)}")
+        if info.num_objects is not None and len(classes) != info.num_objects:
+            raise UserError(f"scene '{name}'{src} has {len(classes)} objects, but the run's texture of '{name}' "
+                            f"has {info.num_objects}")
+
+    def _autocast(self):
+        if self.amp:
+            return torch.autocast("cuda", dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
+    def _batch(self, gbuffers: list[GBuffer], index: int) -> dict[str, torch.Tensor]:
+        from sim2real.render.reference import reference_rendering
+
+        dev = self.device
+        a_ref = np.stack([reference_rendering(g).transpose(2, 0, 1) for g in gbuffers]) * 2.0 - 1.0
+        oid = np.stack([g.object_id.astype(np.int64) for g in gbuffers])
+        pts = np.stack([np.asarray(g.points, dtype=np.float32) for g in gbuffers])
+        nrm = np.stack([np.asarray(g.normal, dtype=np.float32) for g in gbuffers])
+        return {
+            "scene": torch.full((len(gbuffers),), index, dtype=torch.long),  # stays on the CPU (read by Python)
+            "a_ref_i": torch.from_numpy(a_ref.astype(np.float32)).to(dev),
+            "object_id_i": torch.from_numpy(oid).to(dev),
+            "points_i": torch.from_numpy(pts).to(dev),
+            "normal_i": torch.from_numpy(nrm).to(dev),
+        }
+
+    @torch.inference_mode()
+    def _translate(self, gbuffers: list[GBuffer], index: int, pad_to: int) -> list[np.ndarray]:
+        h, w = gbuffers[0].height, gbuffers[0].width
+        n = len(gbuffers)
+        # Every call sees exactly `pad_to` samples (the last frame repeated): on the CPU oneDNN
+        # picks its convolution kernels by batch size, which moved single pixels by one 8-bit
+        # level; with one shape a view's frame never depends on what shares its batch.
+        batch = self._batch(gbuffers + [gbuffers[-1]] * (pad_to - n), index)
+        t = self.gen.translator
+        with self._autocast():
+            a_tex = self.method.a_tex(self.gen, batch, "i").to(batch["a_ref_i"].dtype)
+            x_a = t.join_a(a_tex, batch["a_ref_i"])
+            ph, pw = (-h) % self.multiple, (-w) % self.multiple
+            if ph or pw:
+                x_a = F.pad(x_a, (0, pw, 0, ph), mode="replicate")
+            x_a = x_a.contiguous(memory_format=self.method.memory_format)
+            b_hat = t.dec_b(t.enc_a(x_a))[..., :h, :w]
+        u8 = ((b_hat.float().clamp(-1.0, 1.0) + 1.0) * 127.5).round().to(torch.uint8)
+        u8 = u8[:n].permute(0, 2, 3, 1).cpu().numpy()
+        return [np.ascontiguousarray(f) for f in u8]
+
+    def translate_gbuffers(self, scene_name: str, gbuffers: Sequence[GBuffer], batch: int = DEFAULT_BATCH) -> list[np.ndarray]:
+        """Translate G-buffers of scene ``scene_name`` -> uint8 (H, W, 3) RGB frames, in order.
+
+        Frames of one size go through the networks ``batch`` at a time; a shorter last batch is
+        padded to ``batch`` so that, for a given ``batch`` and device, a view always gives
+        bit-identical pixels wherever it appears (time independence)."""
+        info = self.scene(scene_name)
+        gbuffers = list(gbuffers)
+        if not gbuffers:
+            return []
+        if batch < 1:
+            raise UserError(f"batch must be >= 1, got {batch}")
+        for cls in {tuple(g.classes) for g in gbuffers}:
+            self.check_classes(scene_name, cls)
+        out: list[np.ndarray] = []
+        i = 0
+        while i < len(gbuffers):
+            size = (gbuffers[i].height, gbuffers[i].width)
+            j = i
+            while j < len(gbuffers) and j - i < batch and (gbuffers[j].height, gbuffers[j].width) == size:
+                j += 1
+            out.extend(self._translate(gbuffers[i:j], info.index, batch))
+            i = j
+        return out
+
+
+def find_checkpoint(run_dir: str | os.PathLike, checkpoint: str | os.PathLike | None = None) -> Path:
+    """The checkpoint to load: ``checkpoint`` if given, else ``RUN/checkpoints/last.pt``."""
+    from sim2real.engine.checkpoint import LAST
+
+    if checkpoint is not None:
+        path = Path(checkpoint)
+        if not path.is_file():
+            raise UserError(f"no checkpoint at {path}")
+        return path
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise UserError(f"run directory {run} does not exist")
+    path = run / "checkpoints" / LAST
+    if not path.is_file():
+        raise UserError(f"{run} holds no checkpoint (expected {path}); train it with 'sim2real train' "
+                        f"or pass --checkpoint PATH")
+    return path
+
+
+def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
+             checkpoint: str | os.PathLike | None = None) -> TrainedModel:
+    """Restore the translator and the neural textures of a run for inference.
+
+    ``device``: 'auto' (CUDA when available), 'cpu', 'cuda' or a torch.device. The configuration,
+    method and scene list come from the checkpoint itself; the scene folders are not needed
+    (the textures hold their objects' bounding boxes).
+    """
+    from torch import nn
+
+    from sim2real.config import TrainConfig, from_dict
+    from sim2real.engine.checkpoint import load_checkpoint
+    from sim2real.engine.method import GenStage, get_method
+    from sim2real.engine.trainer import resolve_device
+    from sim2real.models.translator import build_models
+    from sim2real.texture.neural_texture import NeuralTexture
+
+    path = find_checkpoint(run_dir, checkpoint)
+    state = load_checkpoint(path)
+    try:
+        cfg = from_dict(TrainConfig, state["config"])
+        scenes_raw = list(state["scenes"])
+        gen_state = state["gen"]
+    except KeyError as e:
+        raise UserError(f"checkpoint {path} lacks '{e.args[0]}'") from None
+    method = get_method(cfg)
+    dev = device if isinstance(device, torch.device) else resolve_device(str(device))
+
+    translator = build_models(cfg).translator
+    textures, keys, infos = nn.ModuleDict(), [], []
+    for k, s in enumerate(scenes_raw):
+        key = s["key"]
+        keys.append(key)
+        n_obj = None
+        if method.uses_texture:
+            tex = gen_state.get(f"textures.{key}.texture")
+            if tex is None:
+                raise UserError(f"checkpoint {path} has no texture for scene '{s['name']}'")
+            n_obj = int(tex.shape[0])
+            textures[key] = NeuralTexture(n_obj, np.zeros((n_obj, 2, 3), np.float32), None, cfg.texture)
+        scene_dir = Path(s["scene_dir"]) if s.get("scene_dir") else None
+        infos.append(SceneInfo(str(s["name"]), key, k, scene_dir, _scene_classes(scene_dir), n_obj))
+    gen = GenStage(translator, textures, keys)
+    try:
+        gen.load_state_dict(gen_state)
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()[0]
+        raise UserError(f"checkpoint {path} does not match its own configuration ({first})") from None
+    gen.to(dev)
+    if dev.type == "cuda":
+        method.memory_format = torch.channels_last
+        gen.translator.to(memory_format=torch.channels_last)
+    gen.eval()
+    gen.requires_grad_(False)
+    return TrainedModel(cfg, method, gen, dev, infos, path, int(state.get("step", 0)))
+
+
+# --- the command -----------------------------------------------------------------------------------
+
+
+@dataclass
+class TranslateSource:
+    """What to translate: a trajectory through a scene folder, or a views folder."""
+
+    scene_name: str
+    scene_dir: Path | None
+    cameras: list | None = None
+    """Trajectory cameras (ray-cast here); None for a views folder."""
+    view_files: list[Path] | None = None
+    fps: float = 5.0
+    description: dict | None = None
+
+    @property
+    def frames(self) -> int:
+        return len(self.cameras) if self.cameras is not None else len(self.view_files)
+
+
+def trajectory_source(model: TrainedModel, scene: str | os.PathLike, trajectory: str | os.PathLike) -> TranslateSource:
+    """``--scene`` (a scene folder, or the name of one of the run's scenes whose folder still
+    exists) and ``--trajectory`` -> a source; every input is checked before anything is written."""
+    from sim2real.scene.scene import Scene
+    from sim2real.scene.trajectory import Trajectory
+
+    path = Path(scene)
+    if not (path / "scene.json").is_file() and str(scene) in model.infos:
+        info = model.infos[str(scene)]
+        if info.scene_dir is None or not (info.scene_dir / "scene.json").is_file():
+            raise UserError(f"scene '{scene}' was trained from {info.scene_dir}, which no longer holds the scene; "
+                            f"pass its folder with --scene DIR")
+        path = info.scene_dir
+    if not path.exists():
+        raise UserError(f"scene folder {path} does not exist (the run knows the scenes: {', '.join(model.scenes)})")
+    sc = Scene.load(path)
+    model.scene(sc.name)
+    model.check_classes(sc.name, sc.classes, str(path))
+    traj = Trajectory.load(trajectory)
+    return TranslateSource(sc.name, path.resolve(), cameras=traj.cameras, fps=traj.fps,
+                           description={"kind": "trajectory", "trajectory": str(Path(trajectory).resolve()),
+                                        "scene_dir": str(path.resolve())})
+
+
+def views_source(model: TrainedModel, views_dir: str | os.PathLike) -> TranslateSource:
+    """A finished views folder (``sim2real render``) -> a source, its views in file order."""
+    from sim2real.data.views import list_views
+
+    manifest, files = list_views(views_dir)
+    if not files:
+        raise UserError(f"views folder {views_dir} holds no views")
+    name = str(manifest.get("scene", ""))
+    model.scene(name)
+    first = GBuffer.load(files[0])
+    model.check_classes(name, first.classes, str(views_dir))
+    scene_dir = Path(manifest["scene_dir"]) if manifest.get("scene_dir") else None
+    return TranslateSource(name, scene_dir, view_files=list(files), fps=5.0,
+                           description={"kind": "views", "views_dir": str(Path(views_dir).resolve())})
+
+
+def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | os.PathLike, batch: int = DEFAULT_BATCH,
+                       fps: float | None = None, workers: int | None = None, progress: bool = True) -> dict:
+    """Translate every frame of ``source`` into ``out`` (new or empty) and export its ground truth.
+
+    Writes ``frames/000000.png ...``, ``video.mp4`` (H.264 at ``fps``, default the trajectory's),
+    ``ground_truth/`` (:func:`sim2real.inference.export.export_ground_truth`, with ``tum/rgb`` =
+    the translated frames) and, last, ``translate.json``. G-buffers are streamed: a chunk of
+    frames is ray-cast (or read), translated, written and kept only as an uncompressed scratch
+    file for the export (deleted at the end). Returns the manifest.
+    """
+    from tqdm import tqdm
+
+    from sim2real.fileio import atomic_write_image, atomic_write_json, prepare_output_dir
+    from sim2real.inference.export import export_ground_truth
+    from sim2real.inference.frames import LazyGBuffers, chunked, iter_gbuffers, iter_view_files, save_scratch
+    from sim2real.inference.video import _rate, write_video
+
+    if batch < 1:
+        raise UserError(f"--batch must be >= 1, got {batch}")
+    fps = float(source.fps if fps is None else fps)
+    _rate(fps)
+    n = source.frames
+    out = prepare_output_dir(out)
+    frames_dir = out / "frames"
+    frames_dir.mkdir()
+    scratch = out / ".gbuffers"
+    t0 = time.perf_counter()
+    bar = tqdm(total=n, desc="translate", unit="frame", disable=not progress)
+    size: list[tuple[int, int]] = []
+    try:
+        if source.cameras is not None:
+            scratch.mkdir()
+            gbuffers = iter_gbuffers(source.scene_dir, source.cameras, workers=workers, chunk=batch)
+            gt_paths = [scratch / f"{i:06d}.npz" for i in range(n)]
+        else:
+            gbuffers = iter_view_files(source.view_files)
+            gt_paths = list(source.view_files)
+
+        def stream():
+            i = 0
+            for chunk in chunked(gbuffers, batch):
+                if source.cameras is not None:
+                    for k, g in enumerate(chunk):
+                        save_scratch(g, gt_paths[i + k])
+                for f in model.translate_gbuffers(source.scene_name, chunk, batch):
+                    if not size:
+                        size.append(f.shape[:2])
+                    elif f.shape[:2] != size[0]:
+                        raise UserError(f"frame {i} is {f.shape[0]}x{f.shape[1]}, frame 0 is {size[0][0]}x{size[0][1]}; "
+                                        f"a video has one size")
+                    atomic_write_image(frames_dir / f"{i:06d}.png", f)
+                    i += 1
+                    bar.update()
+                    yield f
+
+        count = write_video(stream(), out / "video.mp4", fps=fps)
+        bar.close()
+        translate_s = time.perf_counter() - t0
+        gt_bar = tqdm(total=n, desc="ground truth", unit="frame", disable=not progress)
+        (out / "ground_truth").mkdir()  # the frames are named relative to it (../frames/...)
+        export_ground_truth(LazyGBuffers(gt_paths, lambda i: gt_bar.update()), out / "ground_truth", fps=fps,
+                            rgb_frames_rel=[f"../frames/{i:06d}.png" for i in range(n)])
+        gt_bar.close()
+    finally:
+        bar.close()
+        if scratch.exists():
+            shutil.rmtree(scratch, ignore_errors=True)
+    h, w = size[0]
+    manifest = {
+        "format": FORMAT,
+        "run_checkpoint": str(model.checkpoint.resolve()),
+        "step": model.step,
+        "method": model.cfg.method,
+        "scene": source.scene_name,
+        "source": source.description,
+        "frames": count,
+        "fps": fps,
+        "height": h,
+        "width": w,
+        "device": str(model.device),
+        "amp_bf16": model.amp,
+        "files": {"frames": "frames/%06d.png", "video": "video.mp4", "ground_truth": "ground_truth/"},
+        "seconds": {"translate": round(translate_s, 3), "total": round(time.perf_counter() - t0, 3)},
+    }
+    atomic_write_json(out / "translate.json", manifest)
+    return manifest

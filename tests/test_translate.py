@@ -1,0 +1,150 @@
+"""``sim2real translate`` and the TrainedModel API on a tiny run trained for 2 iterations (CPU)."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from eval_data import SCENE_SEED, tiny_run
+from sim2real.cli.main import main
+from sim2real.inference.translate import load_run
+from sim2real.inference.video import read_video
+from sim2real.render.raycast import RayCaster
+from sim2real.scene.scene import Scene
+from sim2real.scene.trajectory import Trajectory, make_trajectory
+from train_data import scene_dir, views_dir
+
+H, W = 64, 128
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    # 2 OpenMP threads on 2 shared, busy cores spin against each other (10x slower here).
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    base = tmp_path_factory.getbasetemp()
+    run = tiny_run(base)
+    scene = scene_dir(base, SCENE_SEED)
+    caster = RayCaster(Scene.load(scene))
+    cams = make_trajectory(caster, 4, H, W, seed=2).cameras
+    traj = tmp_path_factory.mktemp("traj") / "revisit.txt"
+    Trajectory(cams + [cams[1]], fps=4.0).save(traj)  # frame 4 revisits frame 1's view
+    return {"base": base, "run": run, "scene": scene, "traj": traj, "caster": caster, "cams": cams}
+
+
+def cli(capsys, *argv):
+    code = main([str(a) for a in argv])
+    return code, capsys.readouterr().err.strip()
+
+
+def one_line(err):
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def png(path):
+    return np.asarray(Image.open(path))
+
+
+def test_translate_trajectory(inputs, tmp_path, capsys):
+    out = tmp_path / "out"
+    code, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
+                    "--out", out, "--batch", 3, "--device", "cpu", "--no-progress")
+    assert code == 0, err
+    names = sorted(p.name for p in (out / "frames").iterdir())
+    assert names == [f"{i:06d}.png" for i in range(5)]
+    frames = [png(out / "frames" / n) for n in names]
+    assert all(f.shape == (H, W, 3) and f.dtype == np.uint8 for f in frames)
+    assert read_video(out / "video.mp4") == (5, H, W)
+    gt = json.loads((out / "ground_truth" / "ground_truth.json").read_text())
+    assert gt["frames"] == 5 and gt["fps"] == 4.0 and (gt["height"], gt["width"]) == (H, W)
+    assert len(list((out / "ground_truth" / "flow").glob("*.flo"))) == 4
+    # tum/rgb holds the translated frames, not a_ref
+    assert np.array_equal(png(out / "ground_truth" / "tum" / "rgb" / "000003.png"), frames[3])
+    # time independence: the revisited view (other batch, other position) gives the same pixels
+    assert np.array_equal(frames[4], frames[1])
+    assert not np.array_equal(frames[0], frames[1])
+    manifest = json.loads((out / "translate.json").read_text())
+    assert manifest["frames"] == 5 and manifest["scene"] == f"procedural_{SCENE_SEED:04d}"
+    assert not (out / ".gbuffers").exists()  # scratch removed
+
+
+def test_model_api_is_time_independent(inputs):
+    model = load_run(inputs["run"], "cpu")
+    name = f"procedural_{SCENE_SEED:04d}"
+    assert model.scenes == [name] and model.train_size == (H, W)
+    g = [inputs["caster"].render(c) for c in inputs["cams"][:3]]
+    a = model.translate_gbuffers(name, g, batch=2)
+    b = model.translate_gbuffers(name, [g[2], g[0], g[2], g[1]], batch=2)
+    c = model.translate_gbuffers(name, [g[2]], batch=2)
+    assert np.array_equal(a[2], b[0]) and np.array_equal(a[2], b[2]) and np.array_equal(a[2], c[0])
+    assert np.array_equal(a[0], b[1]) and np.array_equal(a[1], b[3])
+    # a size that is not a multiple of 4 is padded for the networks and cropped back
+    from sim2real.scene.camera import Camera, intrinsics_from_fov
+
+    cam = inputs["cams"][0]
+    odd = inputs["caster"].render(Camera(intrinsics_from_fov(77, 45, 75.0), cam.world_to_camera, 45, 77))
+    assert model.translate_gbuffers(name, [odd])[0].shape == (45, 77, 3)
+
+
+def test_translate_views_folder(inputs, tmp_path, capsys):
+    views = views_dir(inputs["base"], inputs["scene"], n=3, height=H, width=W, name="views_translate")
+    out = tmp_path / "from_views"
+    code, err = cli(capsys, "translate", inputs["run"], "--views", views, "--out", out, "--device", "cpu", "--no-progress")
+    assert code == 0, err
+    assert len(list((out / "frames").glob("*.png"))) == 3
+    assert read_video(out / "video.mp4") == (3, H, W)
+    assert (out / "ground_truth" / "ground_truth.json").is_file()
+
+
+def test_run_without_checkpoint(inputs, tmp_path, capsys):
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    shutil.copy(inputs["run"] / "config.yaml", run / "config.yaml")
+    code, err = cli(capsys, "translate", run, "--scene", inputs["scene"], "--trajectory", inputs["traj"], "--out", tmp_path / "o")
+    assert code == 2
+    assert "no checkpoint" in one_line(err)
+
+
+def test_bad_trajectory_rows(inputs, tmp_path, capsys):
+    bad = tmp_path / "bad.txt"
+    lines = inputs["traj"].read_text().splitlines()
+    bad.write_text("\n".join(lines[:-1] + ["0.8 1 2 3 nan 0 0 1"]) + "\n")
+    code, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", bad, "--out", tmp_path / "o")
+    assert code == 2
+    line = one_line(err)
+    assert f"bad.txt:{len(lines)}" in line and "8 numbers" in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_unknown_scene_names_the_known_ones(inputs, tmp_path, capsys):
+    other = tmp_path / "other_scene"
+    shutil.copytree(inputs["scene"], other)
+    spec = json.loads((other / "scene.json").read_text())
+    spec["name"] = "somewhere_else"
+    (other / "scene.json").write_text(json.dumps(spec))
+    code, err = cli(capsys, "translate", inputs["run"], "--scene", other, "--trajectory", inputs["traj"], "--out", tmp_path / "o")
+    assert code == 2
+    line = one_line(err)
+    assert "somewhere_else" in line and f"procedural_{SCENE_SEED:04d}" in line
+
+
+def test_output_dir_with_other_data(inputs, tmp_path, capsys):
+    out = tmp_path / "busy"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    code, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
+                    "--out", out, "--device", "cpu")
+    assert code == 2
+    assert "already holds other data" in one_line(err)
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]

@@ -1,0 +1,64 @@
+"""Small inputs for the training tests, built once per pytest session (under its base temp)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def scene_dir(base: Path, seed: int) -> Path:
+    """A procedural scene saved as a folder (scene.json + meshes), cached in ``base``."""
+    from sim2real.scene.procedural import generate_scene
+
+    path = Path(base) / f"scene_{seed}"
+    if not (path / "scene.json").is_file():
+        generate_scene(seed).save(path)
+    return path
+
+
+def real_dir(base: Path, n: int = 4, name: str = "real", modes=("RGB",)) -> Path:
+    """``n`` smooth colour images of varying sizes and the given PIL modes."""
+    from PIL import Image
+
+    path = Path(base) / name
+    if path.is_dir():
+        return path
+    path.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for k in range(n):
+        h, w = int(rng.integers(70, 140)), int(rng.integers(130, 300))
+        yy, xx = np.mgrid[0:h, 0:w] / max(h, w)
+        f = rng.uniform(2, 6, 3)
+        rgb = np.stack([0.5 + 0.4 * np.sin(f[c] * (xx + c * yy) * np.pi) for c in range(3)], -1)
+        img = Image.fromarray((rgb * 255).astype(np.uint8))
+        mode = modes[k % len(modes)]
+        if mode != "RGB":
+            img = img.convert(mode)
+        img.save(path / f"img_{k:02d}.png")
+    return path
+
+
+def tiny_config(**changes):
+    """The tiny preset with ``section.field=value`` changes (as ``--set`` would apply them)."""
+    from sim2real.config import override, preset
+
+    return override(preset("tiny"), [f"{k.replace('__', '.')}={v}" for k, v in changes.items()])
+
+
+def views_dir(base: Path, scene_path: Path, n: int = 4, height: int = 64, width: int = 128, name: str | None = None) -> Path:
+    """A views folder (cached G-buffers + views.json) of ``n`` random views of a scene folder."""
+    from sim2real.data.views import write_views_manifest
+    from sim2real.render.raycast import RayCaster
+    from sim2real.scene.scene import Scene
+    from sim2real.scene.trajectory import sample_poses
+
+    path = Path(base) / (name or f"views_{Path(scene_path).name}_{n}")
+    if (path / "views.json").is_file():
+        return path
+    scene = Scene.load(scene_path)
+    caster = RayCaster(scene)
+    for k, cam in enumerate(sample_poses(caster, n, height, width, 75.0, seed=5)):
+        caster.render(cam).save(path / f"view_{k:05d}.npz")
+    write_views_manifest(path, scene.name, scene_path, n)
+    return path
