@@ -20,11 +20,13 @@ import tracemalloc
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.procedural import generate_scene
 from sim2real.scene.trajectory import sample_poses
+from sim2real.threads import single_thread_worker
 
 _W = {}
 
 
 def _init(seed):
+    single_thread_worker()
     _W["c"] = RayCaster(generate_scene(seed))
 
 

@@ -119,6 +119,22 @@ def test_lr_schedule_halves(inputs, tmp_path):
     assert trainer.optimizers["net"].param_groups[0]["betas"] == (0.5, 0.999)
 
 
+def test_time_limit_stops_with_a_checkpoint_at_the_step_it_reached(inputs, tmp_path):
+    from sim2real.engine import checkpoint as ckpt
+
+    scenes, real = inputs
+    cfg = tiny_config(iterations=100_000, checkpoint_every=1000, image_every=1000, log_every=1000)
+    trainer = Trainer(cfg, [scenes], real, tmp_path / "r", progress=False)
+    ends = []
+    trainer.hooks.append(lambda s, v: ends.append(time.perf_counter()))
+    t0 = time.perf_counter()
+    last = trainer.train(time_limit_s=1.0)
+    # it stops after the first step that ends past the budget, not before and not later
+    assert 1 <= trainer.step == len(ends) < 100_000
+    assert ends[-1] - t0 > 0.9 and (len(ends) == 1 or ends[-2] - t0 <= 1.0 + 0.5)
+    assert ckpt.load_checkpoint(last)["step"] == trainer.step
+
+
 def _count_calls(trainer):
     counts = {}
     t = trainer.gen.translator

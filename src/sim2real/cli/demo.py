@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.render.raycast import RayCaster
     from sim2real.render.realdomain import make_real_domain
     from sim2real.scene.procedural import generate_scene
+    from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import make_trajectory
 
     cuda = args.device == "cuda" or (args.device == "auto" and torch.cuda.is_available())
@@ -77,23 +78,16 @@ def run(args: argparse.Namespace) -> int:
 
     print(f"demo: 3/5 training for {args.minutes:g} min ({'GPU' if cuda else 'CPU'})", flush=True)
     trainer = Trainer(cfg, scenes=[str(d) for d in sim_dirs], real=str(out / "real" / "images"), out=out / "run")
-    deadline = time.perf_counter() + 60.0 * args.minutes
-
-    def stop_at_deadline(step: int, values: dict) -> None:
-        # The loop ends after this step and writes its final checkpoint.
-        if time.perf_counter() > deadline:
-            trainer.cfg.iterations = step + 1
-
-    trainer.hooks.append(stop_at_deadline)
     try:
-        trainer.train()
+        trainer.train(time_limit_s=60.0 * args.minutes)
     finally:
         trainer.close()
     steps = trainer.step
 
     print("demo: 4/5 translating the test trajectory", flush=True)
     traj_path = out / "trajectory.txt"
-    make_trajectory(RayCaster(generate_scene(args.seed)), args.frames, h, w, seed=args.seed).save(traj_path)
+    make_trajectory(RayCaster(Scene.load(sim_dirs[0])), args.frames, h, w, cfg.data.fov_x_deg,
+                    seed=args.seed).save(traj_path)
     model = load_run(out / "run", device=args.device)
     translate_sequence(model, trajectory_source(model, sim_dirs[0], traj_path), out / "video")
 

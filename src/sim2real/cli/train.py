@@ -1,7 +1,7 @@
 """``sim2real train``: train textures + translator on simulated scenes and real images.
 
     sim2real train --preset {paper,small,tiny} --scenes DIR... --real DIR --out RUN
-                   [--iterations N] [--checkpoint-every N] [--device {auto,cpu,cuda}]
+                   [--iterations N] [--max-minutes M] [--checkpoint-every N] [--device {auto,cpu,cuda}]
                    [--set section.field=value ...] [--config YAML]
     sim2real train --out RUN --resume [--iterations N] [--set ...]
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import positive_int
+from sim2real.cli.args import positive_float, positive_int
 
 
 def register(sub) -> None:
@@ -24,6 +24,8 @@ def register(sub) -> None:
     p.add_argument("--real", metavar="DIR", help="folder of real images (png/jpg, searched recursively)")
     p.add_argument("--out", required=True, metavar="RUN", help="run folder (new and empty, or the run to resume)")
     p.add_argument("--iterations", type=positive_int, help="total training iterations")
+    p.add_argument("--max-minutes", type=positive_float,
+                   help="also stop (with a checkpoint) once this wall-clock budget is spent, e.g. a job's time limit")
     p.add_argument("--checkpoint-every", type=positive_int, help="iterations between checkpoints")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="where to train (default: config, auto)")
     p.add_argument("--set", dest="overrides", action="append", nargs="+", default=[], metavar="KEY=VALUE",
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     trainer = Trainer(cfg, scenes=args.scenes, real=args.real, out=args.out, resume=path,
                       progress=not args.no_progress, resume_state=state)
     try:
-        last = trainer.train()
+        last = trainer.train(time_limit_s=None if args.max_minutes is None else 60.0 * args.max_minutes)
     finally:
         trainer.close()
     if trainer.dist.is_main:

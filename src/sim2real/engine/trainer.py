@@ -29,6 +29,7 @@ import math
 import os
 import random
 import re
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -43,6 +44,7 @@ from sim2real.engine import distributed
 from sim2real.engine.method import get_method
 from sim2real.engine.observe import Observer
 from sim2real.errors import UserError
+from sim2real.threads import single_thread_worker
 
 _HOST_KEYS = ("scene", "step")  # batch entries that stay on the CPU (read by Python)
 _IMAGE_KEYS = ("a_ref_i", "a_ref_j", "real")
@@ -307,22 +309,30 @@ class Trainer:
         return torch.utils.data.DataLoader(
             self.dataset, batch_size=1, sampler=StepSampler(self.step, self.cfg.iterations), num_workers=w,
             pin_memory=self.cuda, prefetch_factor=4 if w else None, persistent_workers=False,
+            worker_init_fn=single_thread_worker if w else None,
         )
 
-    def train(self) -> Path:
-        """Run from ``self.step`` to ``cfg.iterations``; returns the last checkpoint."""
+    def train(self, time_limit_s: float | None = None) -> Path:
+        """Run from ``self.step`` to ``cfg.iterations``; returns the last checkpoint.
+
+        ``time_limit_s``: also stop (with a final checkpoint) after the first step that ends past
+        this many wall-clock seconds; the progress bar then counts steps without a total.
+        """
         cfg = self.cfg
+        deadline = None if time_limit_s is None else time.perf_counter() + time_limit_s
         prev_det = torch.are_deterministic_algorithms_enabled()
         if cfg.deterministic:
             os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
             torch.use_deterministic_algorithms(True)
-        obs = Observer(self.out, cfg.iterations, self.step, self.dist.is_main, self.progress)
+        obs = Observer(self.out, cfg.iterations if deadline is None else None, self.step, self.dist.is_main,
+                       self.progress)
         try:
             if self.last_checkpoint is None:
                 self.save_checkpoint()  # step 0: a run killed at once can still --resume
             first = self.step
             it = iter(self._loader())
-            while self.step < cfg.iterations:
+            stop = cfg.iterations
+            while self.step < stop:
                 try:
                     batch = next(it)
                 except UserError as e:
@@ -336,13 +346,15 @@ class Trainer:
                     values = dict(zip(losses, torch.stack(list(losses.values())).tolist()))
                     for hook in self.hooks:
                         hook(step, values)
-                if self.step % cfg.log_every == 0 or self.step == cfg.iterations:
+                if deadline is not None and self._past(deadline):
+                    stop = self.step
+                if self.step % cfg.log_every == 0 or self.step == stop:
                     lrs = {k: s.get_last_lr()[0] for k, s in self.schedulers.items()}
                     obs.log(self.step, lrs, {"schedule/vc_weight": self.method.vc_weight(step)})
                 if step == first or self.step % cfg.image_every == 0:
                     obs.images(self.step, self.method.image_rows(batch, self.last_out))
                 self.last_out = None
-                if self.step % cfg.checkpoint_every == 0 or self.step == cfg.iterations:
+                if self.step % cfg.checkpoint_every == 0 or self.step == stop:
                     self.save_checkpoint()
             return self.last_checkpoint
         finally:
@@ -350,6 +362,10 @@ class Trainer:
             self.last_out = None
             if cfg.deterministic:
                 torch.use_deterministic_algorithms(prev_det)
+
+    def _past(self, deadline: float) -> bool:
+        """Whether any rank's clock is past ``deadline`` (so that all ranks stop at the same step)."""
+        return distributed.any_true(self.dist, torch.tensor(time.perf_counter() > deadline, device=self.device))
 
     def close(self) -> None:
         distributed.teardown(self.dist)

@@ -331,7 +331,8 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
 
         sh, sw = s.seg_height, s.seg_width
         x_train, y_train = seg_data
-        seg = train_segmenter(x_train, y_train, s.seg_iterations, device=model.device, seed=s.seed, batch_size=s.seg_batch)
+        seg = train_segmenter(x_train, y_train, s.seg_iterations, device=model.device, seed=s.seed, batch_size=s.seg_batch,
+                              progress=progress)
         gt = np.stack([fit_image(m.astype(np.uint8), sh, sw, nearest=True).astype(bool) for m in gen_liver])
         pred = predict(seg, _to_nchw([fit_image(f, sh, sw) for f in gen]))
         pred_ref = predict(seg, _to_nchw([fit_image(f, sh, sw) for f in gen_aref]))

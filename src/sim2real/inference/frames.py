@@ -25,7 +25,9 @@ _WORKER: dict = {}
 def _init_caster(scene_dir: str) -> None:
     from sim2real.render.raycast import RayCaster
     from sim2real.scene.scene import Scene
+    from sim2real.threads import single_thread_worker
 
+    single_thread_worker()
     _WORKER["caster"] = RayCaster(Scene.load(scene_dir))
 
 

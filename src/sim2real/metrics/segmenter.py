@@ -78,12 +78,15 @@ def _check_images(images: Tensor) -> Tensor:
 
 def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, device: str | torch.device | None = None,
                     seed: int = 0, *, batch_size: int = 8, lr: float = 1e-3, base_channels: int = 16,
-                    depth: int = 3, flips: bool = True) -> LiverUNet:
+                    depth: int = 3, flips: bool = True, progress: bool = False) -> LiverUNet:
     """Train a :class:`LiverUNet` on (images (N,3,H,W) in [0,1], labels (N,H,W) bool).
 
     ``iterations`` Adam steps on random mini-batches of ``batch_size`` (with replacement across
-    steps). ``device`` defaults to the images' device. Returns the model in eval mode, on ``device``.
+    steps). ``device`` defaults to the images' device. ``progress`` shows a progress bar.
+    Returns the model in eval mode, on ``device``.
     """
+    from tqdm import tqdm
+
     images = _check_images(images)
     if not isinstance(labels, Tensor):
         labels = torch.as_tensor(labels)
@@ -103,7 +106,7 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
     y_all = labels.to(device=device, dtype=torch.float32)[:, None]
     n = x_all.shape[0]
     model.train()
-    for _ in range(iterations):
+    for _ in tqdm(range(iterations), desc="liver U-Net", unit="it", disable=not progress):
         idx = torch.randint(0, n, (min(batch_size, n),), generator=gen).to(device)
         x, y = x_all[idx], y_all[idx]
         if flips:

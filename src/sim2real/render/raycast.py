@@ -19,6 +19,7 @@ from sim2real.errors import UserError
 from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.camera import Camera, pixel_centres
 from sim2real.scene.scene import Scene
+from sim2real.threads import single_thread_worker
 
 _MISS = 1e30
 
@@ -221,6 +222,7 @@ _WORKER: dict = {}
 
 
 def _init_worker(scene_dir: str) -> None:
+    single_thread_worker()
     _WORKER["caster"] = RayCaster(Scene.load(scene_dir))
 
 

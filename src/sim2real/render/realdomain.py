@@ -628,6 +628,9 @@ _WORKER: dict = {}
 
 
 def _init_worker(scene_dirs: list[str], appearances: list[dict], options: dict) -> None:
+    from sim2real.threads import single_thread_worker
+
+    single_thread_worker()
     _WORKER.clear()
     _WORKER["dirs"] = scene_dirs
     _WORKER["appearances"] = [Appearance(**{k: tuple(v) if isinstance(v, list) else v for k, v in a.items()}) for a in appearances]

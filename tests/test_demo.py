@@ -1,0 +1,71 @@
+"""``sim2real demo`` end to end on the tiny preset: every stage leaves what the README promises,
+and the ground truth belongs to the frames of the video."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sim2real.cli.main import main
+from sim2real.engine import checkpoint as ckpt
+from sim2real.inference.video import read_video
+from sim2real.render.raycast import RayCaster
+from sim2real.scene.scene import Scene
+from sim2real.scene.trajectory import Trajectory
+
+FRAMES = 6
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo") / "out"
+    code = main(["demo", "--out", str(out), "--minutes", "0.05", "--preset", "tiny", "--scenes", "1",
+                 "--real-images", "8", "--frames", str(FRAMES), "--eval-views", "4", "--seg-iterations", "5"])
+    return code, out
+
+
+def test_demo_writes_video_ground_truth_and_report(demo):
+    code, out = demo
+    assert code == 0
+    info = json.loads((out / "demo.json").read_text())
+    steps = info["training_steps"]
+    assert steps >= 1
+    assert ckpt.load_checkpoint(out / "run" / "checkpoints" / ckpt.LAST)["step"] == steps
+
+    traj = Trajectory.load(out / "trajectory.txt")
+    h, w = traj.cameras[0].height, traj.cameras[0].width
+    assert (h, w) == (64, 128)  # the tiny preset's training size
+    assert read_video(out / info["video"]) == (FRAMES, h, w)
+
+    gt = out / info["ground_truth"]
+    assert sorted(p.name for p in (gt / "depth_npy").iterdir()) == [f"{i:06d}.npy" for i in range(FRAMES)]
+    assert len(list((gt / "flow").glob("*.flo"))) == FRAMES - 1  # forward flow t -> t+1
+    # depth of the last frame equals a fresh ray cast of the trajectory's last camera
+    caster = RayCaster(Scene.load(out / "scenes" / "sim_0"))
+    expected = caster.render(traj.cameras[-1]).depth
+    np.testing.assert_allclose(np.load(gt / "depth_npy" / f"{FRAMES - 1:06d}.npy"), expected, atol=1e-3)
+
+    metrics = json.loads((out / info["metrics"]).read_text())
+    assert metrics["run"]["step"] == steps
+    for key in ("fid", "kid_mean", "kid_std", "proxy", "dice", "dice_a_ref", "of_error", "orb", "orb_curve",
+                "revisit", "per_scene", "reasons", "settings", "inputs"):
+        assert key in metrics, key
+    assert set(metrics["orb"]) == {"1", "5", "10"} and set(metrics["revisit"]["orb"]) == {"1", "5", "10"}
+    assert all({"accuracy", "mean_correct", "pairs"} <= set(v) for v in metrics["orb"].values())
+    # the curve k = 1..20; a sequence of T frames has T - k pairs k apart (none beyond T - 1)
+    assert [int(k) for k in metrics["orb_curve"]] == list(range(1, 21))
+    assert [v["pairs"] for v in metrics["orb_curve"].values()] == [max(0, FRAMES - k) for k in range(1, 21)]
+    assert 0.0 <= metrics["dice"] <= 1.0
+    assert np.isfinite(metrics["of_error"]) and metrics["of_error"] >= 0
+    assert metrics["fid"] is None and "weights" in metrics["reasons"]["fid"]  # said, not invented
+    assert (out / info["report"]).stat().st_size > 0
+    # the stand-in real domain comes from other scenes than the simulated one
+    assert len(list((out / "real" / "images").glob("*.png"))) == 8
+
+
+def test_demo_refuses_a_used_output_folder(tmp_path, capsys):
+    (tmp_path / "old.txt").write_text("keep me")
+    code = main(["demo", "--out", str(tmp_path), "--minutes", "0.05", "--preset", "tiny"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.txt"]
