@@ -20,6 +20,18 @@ def sphere_mesh(centre, radius: float, subdivisions: int = 6) -> trimesh.Trimesh
     return m
 
 
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """torch on one thread for a module: 2 OpenMP threads on 2 shared, busy cores spin against
+    each other (10x slower on the dev machine)."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 @pytest.fixture(scope="session")
 def analytic_scene() -> Scene:
     """A plane z = 0 (class liver) and a sphere of radius 20 mm centred at (0, 0, 30) (fat)."""

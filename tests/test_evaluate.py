@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-import torch
 
 from eval_data import SCENE_SEED, fake_fid_weights, labelled_real_dir, tiny_run
 from sim2real.cli.main import main
@@ -22,13 +21,7 @@ PROXY_KEYS = {"proxy_colour_distance", "proxy_texture_distance", "proxy_colour_t
               "proxy_grad_mean_gen", "proxy_grad_mean_real"}
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    # 2 OpenMP threads on 2 shared, busy cores spin against each other (10x slower here).
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

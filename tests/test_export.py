@@ -1,7 +1,6 @@
 """Ground-truth export: everything written is read back and checked against the G-buffers."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,12 +8,12 @@ from PIL import Image
 
 from sim2real.errors import UserError
 from sim2real.inference.export import (
-    FLO_MAGIC, LABEL_PALETTE, depth_to_png16, export_ground_truth, read_depth_png, read_flo, read_tum_poses,
+    FLO_MAGIC, depth_to_png16, export_ground_truth, read_depth_png, read_flo, read_tum_poses,
     read_tum_poses_with_time, write_flo,
 )
 from sim2real.render.warp import flow as gt_flow
 from sim2real.scene.camera import pixel_centres
-from sim2real.scene.scene import CLASSES
+from sim2real.scene.scene import CLASSES, LABEL_PALETTE
 
 T = 6
 

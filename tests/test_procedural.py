@@ -1,5 +1,4 @@
 import numpy as np
-import pytest
 
 from sim2real.scene.procedural import generate_scene
 from sim2real.scene.scene import CLASSES, Scene

@@ -17,14 +17,14 @@ from PIL import Image
 from sim2real.errors import UserError
 from sim2real.render.raycast import RayCaster
 from sim2real.render.realdomain import (
-    BACKGROUND_LABEL, Appearance, RenderOptions, SceneMaterial, derive_seed, labels_of, make_real_domain,
+    Appearance, RenderOptions, SceneMaterial, derive_seed, make_real_domain,
     render_frame,
 )
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.render.solid_texture import CellField, Noise, VesselTree, surface_samples
 from sim2real.render.warp import correspondences, warp_image
 from sim2real.scene.camera import Camera
-from sim2real.scene.scene import CLASSES
+from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND
 from sim2real.scene.trajectory import make_trajectory, sample_poses
 
 H, W = 96, 192
@@ -122,7 +122,7 @@ def test_appearance_varies_mildly():
 def test_labels_agree_with_gbuffer_object_ids(frames):
     for g, f, _ in frames:
         lut = np.array([CLASSES.index(c) for c in g.classes])
-        expected = np.where(g.object_id >= 0, lut[np.maximum(g.object_id, 0)], BACKGROUND_LABEL)
+        expected = np.where(g.object_id >= 0, lut[np.maximum(g.object_id, 0)], LABEL_BACKGROUND)
         np.testing.assert_array_equal(f.label, expected)
         assert f.label.dtype == np.uint8
 
@@ -138,7 +138,7 @@ def test_label_files_read_back_as_class_indices(scene_dirs, run_one_worker):
         assert label.ndim == 2 and label.dtype == np.uint8 and image.shape == label.shape + (3,)
         caster = RayCaster(Scene.load(scene_dirs[entry["scene"]]))
         cam = Camera(np.array(entry["K"]), np.array(entry["world_to_camera"]), 48, 96)
-        np.testing.assert_array_equal(label, labels_of(caster.render(cam)))
+        np.testing.assert_array_equal(label, caster.render(cam).labels())
         assert set(np.unique(label)) <= set(range(len(CLASSES))) | {255}
 
 
@@ -162,8 +162,8 @@ def test_endoscope_mask(frames, rigs):
     g = frames[0][0]
     f = render_frame(g, rigs[0][1], RenderOptions(mask=True), seed=0)
     corner = (slice(0, 4), slice(0, 4))
-    assert np.all(f.image[corner] == 0) and np.all(f.label[corner] == BACKGROUND_LABEL)
-    np.testing.assert_array_equal(f.label[H // 2], labels_of(g)[H // 2])
+    assert np.all(f.image[corner] == 0) and np.all(f.label[corner] == LABEL_BACKGROUND)
+    np.testing.assert_array_equal(f.label[H // 2], g.labels()[H // 2])
 
 
 # --- appearance is defined in 3D ------------------------------------------------------------------

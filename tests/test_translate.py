@@ -5,7 +5,6 @@ import shutil
 
 import numpy as np
 import pytest
-import torch
 from PIL import Image
 
 from eval_data import SCENE_SEED, tiny_run
@@ -20,13 +19,7 @@ from train_data import scene_dir, views_dir
 H, W = 64, 128
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    # 2 OpenMP threads on 2 shared, busy cores spin against each other (10x slower here).
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

@@ -107,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
         "metrics": "evaluation/metrics.json",
         "report": "evaluation/report.html",
     })
+    shown = {"Dice": metrics.get("dice"), "OF error (px)": metrics.get("of_error"), "FID": metrics.get("fid")}
     print(f"demo written to {out}: video/video.mp4, video/ground_truth/, evaluation/report.html "
-          f"({steps} training steps)")
+          f"({steps} training steps; " + ", ".join(f"{k} {'n/a' if v is None else f'{v:.3g}'}" for k, v in shown.items())
+          + ")")
     return 0

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 
 from sim2real.cli.args import non_negative_int, positive_float, positive_int
-from sim2real.errors import UserError
 
 
 def register(sub) -> None:

@@ -30,7 +30,6 @@ Saturation: a 16-bit depth PNG holds at most 65535, i.e. 6553.5 mm (``depth/``) 
 from __future__ import annotations
 
 import io
-import json
 import os
 import shutil
 import struct
@@ -43,7 +42,7 @@ from sim2real.errors import UserError
 from sim2real.fileio import atomic_path, atomic_write_bytes, atomic_write_image, atomic_write_json, atomic_write_text
 from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.camera import invert_rigid, quaternion_to_rotation, rotation_to_quaternion
-from sim2real.scene.scene import CLASSES
+from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND, LABEL_PALETTE
 
 FORMAT = "sim2real-ground-truth/1"
 DEPTH_PNG_SCALE = 10.0
@@ -52,16 +51,6 @@ TUM_DEPTH_SCALE = 5000.0
 """``tum/depth/*.png`` value per metre (the TUM RGB-D convention; units of 0.2 mm)."""
 FLO_MAGIC = 202021.25
 """First float of a Middlebury .flo file (the bytes read 'PIEH')."""
-LABEL_BACKGROUND = 255
-LABEL_PALETTE: dict[str, tuple[int, int, int]] = {
-    "liver": (200, 40, 40),
-    "fat": (245, 200, 40),
-    "ligament": (70, 190, 230),
-    "abdominal_wall": (150, 80, 200),
-    "gallbladder": (40, 180, 60),
-    "background": (0, 0, 0),
-}
-"""RGB colour of each class in ``labels_color/`` (red, yellow, light blue, purple, green; black)."""
 
 CONVENTION = (
     "OpenCV pinhole camera: x right, y down, z forward; [u, v, 1]^T ~ K (R X + t) with "
@@ -157,11 +146,6 @@ def read_flo(path: str | os.PathLike) -> np.ndarray:
 
 # --- labels --------------------------------------------------------------------------------------
 
-
-def labels_image(g: GBuffer) -> np.ndarray:
-    """uint8 (H, W) class index in :data:`CLASSES` order, 255 = background."""
-    c = g.class_index()
-    return np.where(c >= 0, c, LABEL_BACKGROUND).astype(np.uint8)
 
 
 def labels_to_color(labels: np.ndarray) -> np.ndarray:
@@ -321,7 +305,7 @@ def export_ground_truth(
         depth[~g.mask] = 0.0
         atomic_write_bytes(out / "depth" / _name(i, "png"), _png16_bytes(depth_to_png16(depth, DEPTH_PNG_SCALE)))
         atomic_write_bytes(out / "depth_npy" / _name(i, "npy"), _npy_bytes(depth))
-        labels = labels_image(g)
+        labels = g.labels()
         atomic_write_image(out / "labels" / _name(i, "png"), labels)
         atomic_write_image(out / "labels_color" / _name(i, "png"), labels_to_color(labels))
         if i + 1 < n:

@@ -68,6 +68,14 @@ class GBuffer:
         lut = np.array([CLASSES.index(c) for c in self.classes] + [-1], dtype=np.int16)
         return lut[self.object_id]  # -1 indexes the appended background entry
 
+    def labels(self) -> np.ndarray:
+        """uint8 (H, W) label image: :meth:`class_index`, with
+        :data:`sim2real.scene.scene.LABEL_BACKGROUND` (255) where there is no surface."""
+        from sim2real.scene.scene import LABEL_BACKGROUND
+
+        c = self.class_index()
+        return np.where(c >= 0, c, LABEL_BACKGROUND).astype(np.uint8)
+
     def save(self, path: str | os.PathLike) -> None:
         atomic_save_npz(
             path,

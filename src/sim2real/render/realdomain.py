@@ -23,7 +23,7 @@ variation of tissue colours, vessel density, lobule size and gloss from its appe
 Not modelled: smoke, blood, instruments, tissue deformation, motion blur, lens distortion.
 
 Label PNGs hold the class index per pixel in :data:`sim2real.scene.scene.CLASSES` order
-(0 liver, 1 fat, 2 ligament, 3 abdominal_wall, 4 gallbladder) and :data:`BACKGROUND_LABEL` = 255
+(0 liver, 1 fat, 2 ligament, 3 abdominal_wall, 4 gallbladder) and :data:`LABEL_BACKGROUND` = 255
 for pixels without a surface (or outside the endoscope mask). They are palette PNGs: reading
 them as arrays gives the indices, image viewers show :data:`LABEL_PALETTE` colours.
 """
@@ -42,22 +42,10 @@ from sim2real.render.gbuffer import GBuffer
 from sim2real.render.solid_texture import (
     CellField, Noise, VesselTree, hash_unit, line_profile, smoothstep, surface_samples,
 )
-from sim2real.scene.scene import CLASSES
+from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND, LABEL_PALETTE
 
 FORMAT = "sim2real-realdomain/1"
 
-BACKGROUND_LABEL = 255
-"""Label value of pixels without a surface; other values index :data:`CLASSES`."""
-
-LABEL_PALETTE: dict[str, tuple[int, int, int]] = {
-    "liver": (170, 40, 40),
-    "fat": (240, 200, 60),
-    "ligament": (230, 230, 230),
-    "abdominal_wall": (235, 150, 170),
-    "gallbladder": (60, 170, 60),
-    "background": (0, 0, 0),
-}
-"""Display colour of each label value (the label PNGs carry it as their palette)."""
 
 # Tags of derived seeds (see :func:`derive_seed`).
 _APPEARANCE, _POSE, _TRAJECTORY, _FRAME, _SEQUENCE_FRAME = 11, 12, 13, 14, 15
@@ -510,11 +498,6 @@ def light_falloff(distance: np.ndarray, reference_mm: float) -> np.ndarray:
     return ((1.0 + a) / (a + x * x)).astype(np.float32)
 
 
-def labels_of(g: GBuffer) -> np.ndarray:
-    """uint8 (H, W): class index in :data:`CLASSES` order, 255 where no surface."""
-    c = g.class_index()
-    return np.where(c >= 0, c, BACKGROUND_LABEL).astype(np.uint8)
-
 
 def circular_mask(height: int, width: int, radius: float) -> np.ndarray:
     """Coverage in [0, 1] (float32, H x W) of the endoscope's circular image, anti-aliased over
@@ -591,11 +574,11 @@ def render_frame(g: GBuffer, material: SceneMaterial, options: RenderOptions | N
         lum_noise = rng.normal(0.0, 1.0, (h, w, 1)).astype(np.float32)
         chroma = rng.normal(0.0, 0.4, (h, w, 3)).astype(np.float32)
         img = img + opt.noise * (lum_noise + chroma) * np.sqrt(np.clip(img, 0.05, 1.0))
-    label = labels_of(g)
+    label = g.labels()
     if opt.mask:
         m = circular_mask(h, w, opt.mask_radius)
         img *= m[..., None]
-        label[m < 0.5] = BACKGROUND_LABEL
+        label[m < 0.5] = LABEL_BACKGROUND
     image = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     return RealFrame(image=image, label=label, albedo=albedo_img, shading=shading_img, specular=spec_img, radiance=radiance)
 
@@ -614,7 +597,7 @@ def write_label(path: str | os.PathLike, label: np.ndarray) -> None:
     pal = np.zeros((256, 3), np.uint8)
     for i, c in enumerate(CLASSES):
         pal[i] = LABEL_PALETTE[c]
-    pal[BACKGROUND_LABEL] = LABEL_PALETTE["background"]
+    pal[LABEL_BACKGROUND] = LABEL_PALETTE["background"]
     im = Image.fromarray(np.ascontiguousarray(label.astype(np.uint8)), mode="P")
     im.putpalette(pal.reshape(-1).tolist())
     buf = io.BytesIO()
@@ -781,7 +764,7 @@ def make_real_domain(
         "sequences": int(sequences),
         "frames_per_sequence": int(frames) if sequences else 0,
         "render": opt.to_json(),
-        "labels": {"classes": list(CLASSES), "background": BACKGROUND_LABEL,
+        "labels": {"classes": list(CLASSES), "background": LABEL_BACKGROUND,
                    "palette": {**pal, "background": list(LABEL_PALETTE["background"])}},
         "scenes": [
             {"dir": d, "name": s.name, "scene_seed": s.metadata.get("seed"), "appearance": a.to_json()}

@@ -28,6 +28,19 @@ from sim2real.errors import UserError
 CLASSES: tuple[str, ...] = ("liver", "fat", "ligament", "abdominal_wall", "gallbladder")
 """Object classes in their fixed order (background = -1)."""
 
+LABEL_BACKGROUND = 255
+"""Value of pixels without a surface in uint8 label images; other values index :data:`CLASSES`."""
+LABEL_PALETTE: dict[str, tuple[int, int, int]] = {
+    "liver": (200, 40, 40),
+    "fat": (245, 200, 40),
+    "ligament": (70, 190, 230),
+    "abdominal_wall": (150, 80, 200),
+    "gallbladder": (40, 180, 60),
+    "background": (0, 0, 0),
+}
+"""Display colour of each label (red, yellow, light blue, purple, green; black): colour previews
+of exported labels and the palette of the stand-in real domain's label PNGs."""
+
 FORMAT = "sim2real-scene/1"
 
 
