@@ -22,6 +22,7 @@ Variants now: ``ours`` (the paper), ``ours_no_vc`` (lambda_vc = 0 throughout) an
 from __future__ import annotations
 
 import re
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Callable
 
@@ -86,8 +87,8 @@ def texture_key(name: str, taken: set[str]) -> str:
     return key
 
 
-class Method:
-    """Base class; see the module docstring."""
+class Method(ABC):
+    """Base class; see the module docstring. A variant implements the abstract methods."""
 
     name = "base"
     uses_texture = True
@@ -99,11 +100,13 @@ class Method:
 
     # --- construction ----------------------------------------------------------------------------
 
+    @abstractmethod
     def build(self, sources) -> tuple[GenStage, DisStage]:
-        raise NotImplementedError
+        """The generator stage (translator + one texture per scene) and the discriminator stage."""
 
+    @abstractmethod
     def optim_groups(self, gen: GenStage, dis: DisStage) -> list[OptimGroup]:
-        raise NotImplementedError
+        """Parameter groups, each with its learning rate and side ('gen' or 'dis')."""
 
     # --- schedules ---------------------------------------------------------------------------------
 
@@ -116,14 +119,17 @@ class Method:
 
     # --- one iteration -----------------------------------------------------------------------------
 
+    @abstractmethod
     def translate(self, gen: GenStage, batch: Batch, step: int) -> Out:
-        raise NotImplementedError
+        """Every translation of one iteration (computed once, shared by both updates)."""
 
+    @abstractmethod
     def dis_losses(self, dis: DisStage, batch: Batch, out: Out) -> dict[str, torch.Tensor]:
-        raise NotImplementedError
+        """Discriminator loss terms on the detached translations of ``out``."""
 
+    @abstractmethod
     def gen_losses(self, dis: DisStage, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
-        raise NotImplementedError
+        """Generator/texture loss terms of ``out``."""
 
     def image_rows(self, batch: Batch, out: Out) -> list[list[torch.Tensor]]:
         return []

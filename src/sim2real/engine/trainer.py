@@ -259,6 +259,16 @@ class Trainer:
             out[k] = v
         return out
 
+    def _update(self, side: str, losses: dict[str, torch.Tensor], optimizers: list, step: int) -> None:
+        """One optimiser step of ``side`` on the sum of its (finite) loss terms."""
+        total = sum(losses.values())
+        self._check_finite(side, losses, total, step)
+        for o in optimizers:
+            o.zero_grad(set_to_none=True)
+        total.backward()
+        for o in optimizers:
+            o.step()
+
     def _check_finite(self, side: str, losses: dict[str, torch.Tensor], total: torch.Tensor, step: int) -> None:
         if not distributed.any_true(self.dist, ~torch.isfinite(total.detach())):
             return
@@ -278,25 +288,13 @@ class Trainer:
         with self._autocast():
             out = self.gen_ddp(self.method.translate, batch, step)
             d_losses = self.dis_ddp(self.method.dis_losses, batch, out)
-        d_total = sum(d_losses.values())
-        self._check_finite("dis", d_losses, d_total, step)
-        for o in dis_opts:
-            o.zero_grad(set_to_none=True)
-        d_total.backward()
-        for o in dis_opts:
-            o.step()
+        self._update("dis", d_losses, dis_opts, step)
 
         self._set_dis_grad(False)
         try:
             with self._autocast():
                 g_losses = self.method.gen_losses(self.dis, batch, out, step)
-            g_total = sum(g_losses.values())
-            self._check_finite("gen", g_losses, g_total, step)
-            for o in gen_opts:
-                o.zero_grad(set_to_none=True)
-            g_total.backward()
-            for o in gen_opts:
-                o.step()
+            self._update("gen", g_losses, gen_opts, step)
         finally:
             self._set_dis_grad(True)
         for s in self.schedulers.values():
