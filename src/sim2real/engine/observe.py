@@ -27,14 +27,12 @@ GAP = 2
 
 def make_grid(rows: list[list[torch.Tensor]]) -> np.ndarray:
     """Rows of (3, H, W) images in [-1, 1] -> uint8 (H', W', 3) with white gaps; short rows are padded."""
-    cols = max(len(r) for r in rows)
-    h, w = rows[0][0].shape[-2:]
-    grid = np.full((len(rows) * (h + GAP) - GAP, cols * (w + GAP) - GAP, 3), 255, np.uint8)
-    for r, row in enumerate(rows):
-        for c, img in enumerate(row):
-            a = ((img.detach().float().cpu().clamp(-1, 1) + 1) * 127.5 + 0.5).to(torch.uint8)
-            grid[r * (h + GAP) : r * (h + GAP) + h, c * (w + GAP) : c * (w + GAP) + w] = a.permute(1, 2, 0).numpy()
-    return grid
+    from sim2real.grid import tile
+
+    def u8(img: torch.Tensor) -> np.ndarray:
+        return ((img.detach().float().cpu().clamp(-1, 1) + 1) * 127.5 + 0.5).to(torch.uint8).permute(1, 2, 0).numpy()
+
+    return tile([[u8(img) for img in row] for row in rows], GAP)
 
 
 class Observer:

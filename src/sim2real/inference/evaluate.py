@@ -486,15 +486,11 @@ def _is_sample_index(i: int, T: int) -> bool:
 
 
 def _grid(rows: list[list[np.ndarray]], gap: int = 2) -> np.ndarray:
-    """Tile equally sized uint8 RGB images (rows of columns) with white gaps."""
+    """Tile uint8 RGB images (rows of columns) with white gaps, each fitted to the first one's size."""
+    from sim2real.grid import tile
+
     h, w = rows[0][0].shape[:2]
-    ncol = max(len(r) for r in rows)
-    canvas = np.full((len(rows) * (h + gap) - gap, ncol * (w + gap) - gap, 3), 255, np.uint8)
-    for r, row in enumerate(rows):
-        for c, im in enumerate(row):
-            im = im if im.shape[:2] == (h, w) else fit_image(im, h, w)
-            canvas[r * (h + gap): r * (h + gap) + h, c * (w + gap): c * (w + gap) + w] = im
-    return canvas
+    return tile([[im if im.shape[:2] == (h, w) else fit_image(im, h, w) for im in row] for row in rows], gap)
 
 
 def _write_samples(out: Path, gen, gen_aref, real_imgs, seq_samples, s: EvalSettings) -> dict:
