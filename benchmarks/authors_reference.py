@@ -10,6 +10,8 @@ release:
   projection is a gather with index lists precomputed per view (12 corner texels and weights
   per foreground pixel, computed outside the timed region, as an offline cache would) followed
   by a scatter of the foreground pixels into the image;
+* the decoders upsample and then convolve (MUNIT's ``nn.Upsample`` + 5x5 conv; sim2real
+  computes the same function sub-pixel, see ``UpConv2dBlock``);
 * fp32 everywhere, also on CUDA (no autocast, no channels-last);
 * plain Adam (``torch.optim.Adam`` defaults: no fused kernel), the discriminators keep
   ``requires_grad`` during the generator step, and every decoder call is separate.
@@ -24,6 +26,7 @@ import torch
 from torch import nn
 
 from sim2real.losses import l1, lsgan_dis_loss, lsgan_gen_loss, ms_ssim_loss, view_consistency, warp_backward
+from sim2real.models.layers import UpConv2dBlock
 from sim2real.models.translator import build_models
 from sim2real.render.reference import class_albedo
 from sim2real.texture.neural_texture import NeuralTexture
@@ -80,6 +83,9 @@ class AuthorsStyleTrainer:
         torch.manual_seed(cfg.seed)
         self.cfg = cfg
         self.tr, self.dis_a, self.dis_b = (m.to(device) for m in build_models(cfg))
+        for m in self.tr.modules():
+            if isinstance(m, UpConv2dBlock):
+                m.subpixel = False  # upsample, then convolve
         self.textures = nn.ModuleList(GatherScatterTexture(s, cfg.texture) for s in sources).to(device)
         o = cfg.optim
         kw = dict(betas=(o.beta1, o.beta2), weight_decay=o.weight_decay)

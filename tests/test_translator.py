@@ -8,7 +8,9 @@ from torch import nn
 
 from sim2real.config import DiscriminatorConfig, GeneratorConfig, TrainConfig, preset
 from sim2real.models import MsImageDis, Translator, build_models
-from sim2real.models.layers import LayerNorm
+import torch.nn.functional as F
+
+from sim2real.models.layers import LayerNorm, UpConv2dBlock
 
 
 def _tiny(content_channels):
@@ -119,6 +121,52 @@ def test_unknown_norm_or_padding_is_rejected():
         Translator(3, GeneratorConfig(filters=4, res_blocks=1, upsample_norm="bn"))
     with pytest.raises(ValueError, match="pad_type"):
         Translator(3, GeneratorConfig(filters=4, res_blocks=1, pad_type="circular"))
+
+
+def _upsample_then_conv(x, weight, bias, pad_type):
+    """MUNIT's up-step written out: nearest x2, pad the upsampled image, convolve."""
+    u = F.interpolate(x, scale_factor=2, mode="nearest")
+    p = weight.shape[-1] // 2
+    mode = {"reflect": "reflect", "replicate": "replicate", "zero": "constant"}[pad_type]
+    return F.conv2d(F.pad(u, (p, p, p, p), mode=mode), weight, bias)
+
+
+@pytest.mark.parametrize("pad_type", ["reflect", "replicate", "zero"])
+@pytest.mark.parametrize("kernel", [3, 5, 7])
+@pytest.mark.parametrize("hw", [(5, 7), (9, 4), (2, 3)])
+def test_subpixel_up_step_equals_upsample_then_conv(pad_type, kernel, hw):
+    """Values and gradients (input, weight, bias) of the sub-pixel form equal the direct form
+    in float64, at every border, for odd sizes and for inputs too small for the sub-pixel form."""
+    torch.manual_seed(kernel)
+    layer = UpConv2dBlock(4, 3, kernel, norm="none", activation="none", pad_type=pad_type).double()
+    layer.subpixel = True
+    x = torch.randn(2, 4, *hw, dtype=torch.float64, requires_grad=True)
+    w_out = torch.randn(2, 3, 2 * hw[0], 2 * hw[1], dtype=torch.float64)
+    conv = layer.block.conv
+    got = layer(x)
+    g_got = torch.autograd.grad((got * w_out).sum(), (x, conv.weight, conv.bias))
+    want = _upsample_then_conv(x, conv.weight, conv.bias, pad_type)
+    g_want = torch.autograd.grad((want * w_out).sum(), (x, conv.weight, conv.bias))
+    assert got.shape == want.shape == w_out.shape
+    torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)
+    for a, b in zip(g_got, g_want):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+
+
+def test_decoder_up_step_is_the_release_layer_sequence():
+    """Same state dict into MUNIT's [Upsample, Conv2dBlock(k5, LN, ReLU)]: same output, in both forms."""
+    from sim2real.models.layers import Conv2dBlock
+
+    torch.manual_seed(0)
+    layer = UpConv2dBlock(64, 32, 5, norm="ln", activation="relu", pad_type="reflect")
+    release = nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"),
+                            Conv2dBlock(64, 32, 5, 1, 2, norm="ln", activation="relu", pad_type="reflect"))
+    release[1].load_state_dict(layer.block.state_dict())
+    x = torch.randn(1, 64, 32, 64)  # 64 * 32 * 64 = 2^17 input values: the automatic rule picks sub-pixel
+    want = release(x)
+    for form in (None, True, False):
+        layer.subpixel = form
+        torch.testing.assert_close(layer(x), want, rtol=1e-4, atol=1e-4)
 
 
 def test_tiny_preset_models_build_and_run():

@@ -11,7 +11,8 @@ Decoder::
 
     if c > 0: conv3(c -> w) ReLU                              (release)
     res_blocks x ResBlock(w, IN)
-    d x [nearest upsample x2, conv5 (halve channels) norm ReLU]   (norm: MUNIT layer norm)
+    d x [nearest upsample x2, conv5 (halve channels) norm ReLU]   (norm: MUNIT layer norm;
+                                                                 computed sub-pixel: UpConv2dBlock)
     conv7(f -> cout) tanh
 
 All padding is ``pad_type`` (reflect). Domain A is ``cat(a_tex, a_ref)`` with
@@ -27,7 +28,7 @@ from torch import nn
 
 from sim2real.config import GeneratorConfig, TrainConfig
 from sim2real.models.discriminator import MsImageDis
-from sim2real.models.layers import Conv2dBlock, ResBlock, init_weights
+from sim2real.models.layers import Conv2dBlock, ResBlock, UpConv2dBlock, init_weights
 
 
 def content_width(cfg: GeneratorConfig) -> int:
@@ -66,10 +67,7 @@ class Decoder(nn.Module):
             layers.append(Conv2dBlock(cfg.content_channels, dim, 3, 1, 1, norm="none", activation="relu", pad_type=pad))
         layers += [ResBlock(dim, "in", pad) for _ in range(cfg.res_blocks)]
         for _ in range(cfg.downsamplings):
-            layers += [
-                nn.Upsample(scale_factor=2, mode="nearest"),
-                Conv2dBlock(dim, dim // 2, 5, 1, 2, norm=cfg.upsample_norm, activation="relu", pad_type=pad),
-            ]
+            layers.append(UpConv2dBlock(dim, dim // 2, 5, norm=cfg.upsample_norm, activation="relu", pad_type=pad))
             dim //= 2
         layers.append(Conv2dBlock(dim, cout, 7, 1, 3, norm="none", activation="tanh", pad_type=pad))
         self.model = nn.Sequential(*layers)
