@@ -321,7 +321,8 @@ class Trainer:
         prev_det = torch.are_deterministic_algorithms_enabled()
         if cfg.deterministic:
             os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
-            torch.use_deterministic_algorithms(True)
+            # CUDA has no deterministic backward for reflection/replication padding: warn there
+            torch.use_deterministic_algorithms(True, warn_only=self.cuda)
         obs = Observer(self.out, cfg.iterations if deadline is None else None, self.step, self.dist.is_main,
                        self.progress)
         try:

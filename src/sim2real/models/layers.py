@@ -2,8 +2,9 @@
 
 ``Conv2dBlock`` is ``pad -> conv (bias) -> norm -> activation``; the padding is explicit so that
 'reflect' works for any kernel. ``UpConv2dBlock`` is MUNIT's decoder up-step (nearest x2
-upsample, then a ``Conv2dBlock``) computed as a sub-pixel convolution. Norms: 'in' instance norm (no affine, as MUNIT), 'ln' MUNIT's
-layer norm, 'none'. Activations: 'relu', 'lrelu' (slope 0.2), 'tanh', 'none'.
+upsample, then a ``Conv2dBlock``) computed as a sub-pixel convolution. Norms: 'in' instance
+norm (no affine, as MUNIT), 'ln' MUNIT's layer norm, 'none'. Activations: 'relu', 'lrelu'
+(slope 0.2), 'tanh', 'none'.
 """
 
 from __future__ import annotations
