@@ -46,6 +46,22 @@ def test_occluded_points_are_masked(hiding_scene):
     assert visible[free].mean() > 0.99
 
 
+def test_surface_seen_at_a_grazing_angle_is_not_self_occluded():
+    """A plane with nothing on it, seen by j at ~80 degrees from its normal: every point of i that
+    lands inside j is visible. j's depth buffer is read at the nearest pixel, and across a pixel
+    the depth of such a surface changes by ~(z / f) tan(80 deg), several times a 1 mm tolerance."""
+    caster = RayCaster(Scene("plane", [SceneObject("floor", "liver", plane_mesh(half=5000.0))],
+                             CameraRegion([0, 0, 100], [5, 5, 5])))
+    K = intrinsics_from_fov(256, 128, 75)
+    ci = Camera(K, look_at([0, 0, 150], [0, 0, 0], [0, 1, 0]), 128, 256)
+    cj = Camera(K, look_at([-300, 0, 60], [0, 0, 0], [0, 0, 1]), 128, 256)  # 78.7 deg at the target
+    gi, gj = caster.render(ci), caster.render(cj)
+    uv, visible = correspondences(gi, gj)
+    inside = (uv[..., 0] >= 0) & (uv[..., 0] < 256) & (uv[..., 1] >= 0) & (uv[..., 1] < 128) & gi.mask
+    assert inside.sum() > 5000
+    assert visible[inside].all()
+
+
 def _near(mask, r):
     from scipy.ndimage import binary_dilation
 

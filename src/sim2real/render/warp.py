@@ -3,11 +3,16 @@
 For every pixel of view i we take its surface point s (G-buffer ``points``), project it into
 view j and keep it when it lands inside j, lies in front of j's camera, and is not occluded:
 
-    occluded  <=>  z_j(s) > depth_j[pixel of s in j] + eps,     eps = 1 mm
+    occluded  <=>  z_j(s) > depth_j[pixel of s in j] + tol,
+    tol = eps + (z_j(s) / f_j) * min(tan(theta), tan(85 deg)),     eps = 1 mm
 
 (the authors' release had this comparison reversed and so kept hidden points). The depth
 buffer of j is read at the pixel that contains the projection (no interpolation across
-silhouettes). Warping an image of view j into view i samples it bilinearly at those
+silhouettes), up to a pixel away from where s lands. Across one pixel the depth of a surface
+seen by j at angle theta from its normal changes by about (z / f) tan(theta), which at grazing
+angles is several millimetres: a fixed tolerance then marks visible surface as occluded in
+bands (measured: 38 % of a plane seen at 79 degrees). Hence the slope-scaled term, as a
+shadow map's slope-scaled depth bias. Warping an image of view j into view i samples it bilinearly at those
 positions: the paper's backward warp w_i(b_j), which leaves no splatting holes.
 """
 
@@ -16,9 +21,10 @@ from __future__ import annotations
 import numpy as np
 
 from sim2real.render.gbuffer import GBuffer
-from sim2real.scene.camera import pixel_centres, project
+from sim2real.scene.camera import Camera, pixel_centres, project
 
 OCCLUSION_EPS_MM = 1.0
+MAX_SLOPE = float(np.tan(np.radians(85.0)))
 
 
 def correspondences(gi: GBuffer, gj: GBuffer, eps: float = OCCLUSION_EPS_MM) -> tuple[np.ndarray, np.ndarray]:
@@ -32,7 +38,12 @@ def correspondences(gi: GBuffer, gj: GBuffer, eps: float = OCCLUSION_EPS_MM) -> 
     inside = gi.mask & (z > 1e-6) & (col >= 0) & (col < gj.width) & (row >= 0) & (row < gj.height)
     depth_j = np.zeros(gi.depth.shape, np.float64)
     depth_j[inside] = gj.depth[row[inside], col[inside]]
-    visible = inside & (depth_j > 0) & ~(z > depth_j + eps)
+    ray = gi.points.astype(np.float64) - Camera(gj.K, gj.world_to_camera, gj.height, gj.width).position
+    ray /= np.maximum(np.linalg.norm(ray, axis=-1, keepdims=True), 1e-12)
+    cos = np.clip(np.abs((ray * gi.normal).sum(-1)), 1e-6, 1.0)
+    slope = np.minimum(np.sqrt(1.0 - cos**2) / cos, MAX_SLOPE)
+    tol = eps + z / min(gj.K[0, 0], gj.K[1, 1]) * slope
+    visible = inside & (depth_j > 0) & ~(z > depth_j + tol)
     return uv.astype(np.float32), visible
 
 
