@@ -12,8 +12,10 @@ silhouettes), up to a pixel away from where s lands. Across one pixel the depth 
 seen by j at angle theta from its normal changes by about (z / f) tan(theta), which at grazing
 angles is several millimetres: a fixed tolerance then marks visible surface as occluded in
 bands (measured: 38 % of a plane seen at 79 degrees). Hence the slope-scaled term, as a
-shadow map's slope-scaled depth bias. Warping an image of view j into view i samples it bilinearly at those
-positions: the paper's backward warp w_i(b_j), which leaves no splatting holes.
+shadow map's slope-scaled depth bias.
+
+Warping an image of view j into view i samples it bilinearly at those positions: the paper's
+backward warp w_i(b_j), which leaves no splatting holes.
 """
 
 from __future__ import annotations
