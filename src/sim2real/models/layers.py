@@ -130,7 +130,7 @@ class UpConv2dBlock(nn.Module):
         self.block = Conv2dBlock(cin, cout, kernel, 1, kernel // 2, norm=norm, activation=activation, pad_type=pad_type)
         self.pad_type = pad_type
         self.subpixel: bool | None = None
-        p = kernel // 2
+        self.p = p = kernel // 2
         self.r = (p + 1) // 2
         # phase_map[phase, j, t] = 1 where tap t of an output of that phase reads input offset j - r
         m = torch.zeros(2, 2 * self.r + 1, kernel)
@@ -143,7 +143,7 @@ class UpConv2dBlock(nn.Module):
         return self.block.conv(self.block.pad(F.interpolate(x, scale_factor=2, mode="nearest")))
 
     def _subpixel(self, x: torch.Tensor) -> torch.Tensor:
-        conv, r, p = self.block.conv, self.r, self.block.conv.kernel_size[0] // 2
+        conv, r, p = self.block.conv, self.r, self.p
         m = self.phase_map.to(conv.weight.dtype)
         w = torch.einsum("pak,qbl,oikl->opqiab", m, m, conv.weight)
         w = w.reshape(-1, conv.in_channels, 2 * r + 1, 2 * r + 1)
@@ -161,12 +161,10 @@ class UpConv2dBlock(nn.Module):
         return y
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        conv = self.block.conv
-        p = conv.kernel_size[0] // 2
         use = self.subpixel
         if use is None:
-            use = conv.in_channels * x.shape[-2] * x.shape[-1] >= self.MIN_INPUT
-        use = use and p > 0 and min(x.shape[-2:]) > p
+            use = self.block.conv.in_channels * x.shape[-2] * x.shape[-1] >= self.MIN_INPUT
+        use = use and self.p > 0 and min(x.shape[-2:]) > self.p
         x = self._subpixel(x) if use else self._direct(x)
         if self.block.norm is not None:
             x = self.block.norm(x)
