@@ -11,7 +11,15 @@ and compares simple image statistics in [0, 1]:
 ``distance`` entries are |translated - real|, summed over the RGB channels for mean and std.
 A learning run should move them towards 0 between step 0 and the latest checkpoint.
 
-Usage: python benchmarks/learn_stats.py RUN [--samples 16] [--checkpoint PATH]
+Texture detail: ``a_tex_gradient`` is the same gradient statistic on the projected neural
+texture a_tex of the same views (its N features averaged, mapped to [0, 1]). At step 0 every
+object's texture is one colour, so only object outlines contribute; detail learned on the
+textures raises it.
+``--texture-png PATH`` writes the latest checkpoint's textures (``tanh`` of the texels, first 3
+features as RGB) as one image per scene: a row per object, the 6 planes ``+x -x +y -y +z -z``
+side by side, each object stretched to its own value range.
+
+Usage: python benchmarks/learn_stats.py RUN [--samples 16] [--checkpoint PATH] [--texture-png PATH]
 """
 
 from __future__ import annotations
@@ -26,15 +34,19 @@ from torch.utils.data import default_collate
 EVAL_SEED = 987654321
 
 
+def gradient(grey: torch.Tensor) -> float:
+    """Mean gradient magnitude (forward differences) of (K, H, W) images."""
+    gx = grey[:, :, 1:] - grey[:, :, :-1]
+    gy = grey[:, 1:, :] - grey[:, :-1, :]
+    return float(torch.sqrt(gx[:, :-1, :] ** 2 + gy[:, :, :-1] ** 2).mean())
+
+
 def image_stats(images: torch.Tensor) -> dict:
     """images (K, 3, H, W) in [-1, 1] -> colour mean/std per channel and mean grey gradient magnitude."""
     x = (images.float().clamp(-1, 1) + 1) / 2
     grey = 0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2]
-    gx = grey[:, :, 1:] - grey[:, :, :-1]
-    gy = grey[:, 1:, :] - grey[:, :-1, :]
-    grad = torch.sqrt(gx[:, :-1, :] ** 2 + gy[:, :, :-1] ** 2).mean()
     return {"mean": x.mean((0, 2, 3)).tolist(), "std": x.transpose(0, 1).reshape(3, -1).std(1).tolist(),
-            "gradient": float(grad)}
+            "gradient": gradient(grey)}
 
 
 def distance(a: dict, b: dict) -> dict:
@@ -43,7 +55,8 @@ def distance(a: dict, b: dict) -> dict:
             "gradient_abs": abs(a["gradient"] - b["gradient"])}
 
 
-def translate(state: dict, batches: list[dict]) -> torch.Tensor:
+def translate(state: dict, batches: list[dict]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(b_hat, a_tex) of view i of every batch, with the generator of checkpoint ``state``."""
     from sim2real.config import TrainConfig, from_dict
     from sim2real.data.datasets import resolve_scenes
     from sim2real.engine.method import get_method
@@ -54,12 +67,35 @@ def translate(state: dict, batches: list[dict]) -> torch.Tensor:
     gen, _ = method.build(sources)
     gen.load_state_dict(state["gen"])
     gen.eval()
-    outs = []
+    outs, texs = [], []
     with torch.no_grad():
         for b in batches:
-            x_a = gen.translator.join_a(method.a_tex(gen, b, "i"), b["a_ref_i"])
-            outs.append(gen.translator.a_to_b(x_a)[0])
-    return torch.cat(outs)
+            texs.append(method.a_tex(gen, b, "i"))
+            outs.append(gen.translator.a_to_b(gen.translator.join_a(texs[-1], b["a_ref_i"]))[0])
+    return torch.cat(outs), torch.cat(texs)
+
+
+def save_textures(state: dict, path: Path) -> list[Path]:
+    """The checkpoint's textures as images (see the module docstring); returns the files written."""
+    import numpy as np
+    from PIL import Image
+
+    written = []
+    for key, value in state["gen"].items():
+        if not (key.startswith("textures.") and key.endswith(".texture")):
+            continue
+        t = torch.tanh(value.float())[..., :3]  # (O, 6, S, S, <=3)
+        lo = t.amin((1, 2, 3, 4), keepdim=True)
+        hi = t.amax((1, 2, 3, 4), keepdim=True)
+        t = ((t - lo) / (hi - lo).clamp_min(1e-6) * 255).round().byte()
+        if t.shape[-1] < 3:
+            t = t[..., :1].expand(*t.shape[:-1], 3)
+        O, P, S = t.shape[:3]
+        img = t.permute(0, 2, 1, 3, 4).reshape(O * S, P * S, 3).numpy()
+        out = path.with_name(f"{path.stem}_{key.split('.')[1]}{path.suffix or '.png'}")
+        Image.fromarray(np.ascontiguousarray(img)).save(out)
+        written.append(out)
+    return written
 
 
 def main() -> None:
@@ -72,6 +108,7 @@ def main() -> None:
     ap.add_argument("run")
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--checkpoint", help="compare this checkpoint instead of last.pt")
+    ap.add_argument("--texture-png", type=Path, help="write the latest textures as PATH_<scene>.png")
     args = ap.parse_args()
     ck = Path(args.run) / "checkpoints"
     first = load_checkpoint(ck / "step_0000000.pt")
@@ -85,8 +122,12 @@ def main() -> None:
     result = {"run": str(args.run), "samples": args.samples, "real": real,
               "a_ref": {**a_ref, "distance_to_real": distance(a_ref, real)}}
     for name, state in (("step_0", first), ("latest", latest)):
-        s = image_stats(translate(state, batches))
-        result[name] = {"step": state["step"], **s, "distance_to_real": distance(s, real)}
+        b_hat, a_tex = translate(state, batches)
+        s = image_stats(b_hat)
+        result[name] = {"step": state["step"], **s, "distance_to_real": distance(s, real),
+                        "a_tex_gradient": gradient((a_tex.float().mean(1) + 1) / 2)}
+    if args.texture_png:
+        result["texture_png"] = [str(p) for p in save_textures(latest, args.texture_png)]
     print(json.dumps(result, indent=2))
 
 

@@ -19,12 +19,11 @@ One iteration (``step`` counts from 0):
 Every loss term is checked for NaN/inf before its optimiser steps; a non-finite loss stops the
 run with a UserError naming the last good checkpoint. On CUDA the forward passes run under
 bf16 autocast with channels-last images and networks (no loss scaling is needed for bf16);
-on the CPU everything is fp32. The device is chosen at run time.
+on the CPU everything is fp32 (engine/precision.py). The device is chosen at run time.
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import random
@@ -40,11 +39,12 @@ from sim2real.config import TrainConfig, to_dict
 from sim2real.data.datasets import StepSampler, TrainPairs, resolve_scenes
 from sim2real.data.real import RealImages
 from sim2real.engine import checkpoint as ckpt
-from sim2real.engine import distributed
+from sim2real.engine import distributed, precision
 from sim2real.engine.method import get_method
 from sim2real.engine.observe import Observer
 from sim2real.errors import UserError
 from sim2real.threads import single_thread_worker
+
 
 _HOST_KEYS = ("scene", "step")  # batch entries that stay on the CPU (read by Python)
 _IMAGE_KEYS = ("a_ref_i", "a_ref_j", "real")
@@ -142,8 +142,9 @@ class Trainer:
         self.dist = distributed.setup(probe.type)
         self.device = resolve_device(cfg.device, self.dist.local_rank)
         self.cuda = self.device.type == "cuda"
-        self.amp = self.cuda and cfg.amp
-        if self.cuda:
+        self.channels_last = precision.mixed_precision(self.device)
+        self.amp = self.channels_last and cfg.amp
+        if self.channels_last:
             self.method.memory_format = torch.channels_last
 
         self.sources = resolve_scenes(scenes, cfg.data.height, cfg.data.width)
@@ -165,7 +166,7 @@ class Trainer:
                                 f"not {[s.name for s in self.sources]}")
         self.gen.to(self.device)
         self.dis.to(self.device)
-        if self.cuda:  # conv weights channels-last (4-D tensors only: the 5-D textures stay as they are)
+        if self.channels_last:  # conv weights channels-last (4-D tensors only: the 5-D textures stay as they are)
             for m in (*self.gen.children(), self.dis):
                 if not isinstance(m, torch.nn.ModuleDict):
                     m.to(memory_format=torch.channels_last)
@@ -243,9 +244,7 @@ class Trainer:
     # --- the loop --------------------------------------------------------------------------------
 
     def _autocast(self):
-        if self.amp:
-            return torch.autocast("cuda", dtype=torch.bfloat16)
-        return contextlib.nullcontext()
+        return precision.autocast(self.device, self.amp)
 
     def _to_device(self, batch: dict) -> dict:
         out = {}
@@ -254,7 +253,7 @@ class Trainer:
                 out[k] = v.tolist()
                 continue
             v = v.to(self.device, non_blocking=True)
-            if self.cuda and k in _IMAGE_KEYS:
+            if self.channels_last and k in _IMAGE_KEYS:
                 v = v.contiguous(memory_format=torch.channels_last)
             out[k] = v
         return out

@@ -24,7 +24,6 @@ in-process or in a process pool) or a views folder through the model and writes
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import shutil
@@ -37,6 +36,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from sim2real.engine import precision
 from sim2real.errors import UserError
 from sim2real.render.gbuffer import GBuffer
 
@@ -82,8 +82,7 @@ class TrainedModel:
         self.method = method
         self.gen = gen
         self.device = device
-        self.cuda = device.type == "cuda"
-        self.amp = self.cuda and bool(cfg.amp)
+        self.amp = precision.mixed_precision(device) and bool(cfg.amp)
         self.infos = {s.name: s for s in scenes}
         self.checkpoint = checkpoint
         self.step = step
@@ -117,9 +116,7 @@ class TrainedModel:
                             f"has {info.num_objects}")
 
     def _autocast(self):
-        if self.amp:
-            return torch.autocast("cuda", dtype=torch.bfloat16)
-        return contextlib.nullcontext()
+        return precision.autocast(self.device, self.amp)
 
     def _batch(self, gbuffers: list[GBuffer], index: int) -> dict[str, torch.Tensor]:
         from sim2real.render.reference import reference_rendering
@@ -252,7 +249,7 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
         first = str(e).strip().splitlines()[0]
         raise UserError(f"checkpoint {path} does not match its own configuration ({first})") from None
     gen.to(dev)
-    if dev.type == "cuda":
+    if precision.mixed_precision(dev):
         method.memory_format = torch.channels_last
         gen.translator.to(memory_format=torch.channels_last)
     gen.eval()
