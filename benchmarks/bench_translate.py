@@ -81,11 +81,11 @@ def main() -> None:
             model.translate_gbuffers(scene.name, gbuffers, args.batch)  # warm-up
             times = []
             for _ in range(args.repeats):
-                if model.cuda:
+                if model.device.type == "cuda":
                     torch.cuda.synchronize()
                 t0 = time.perf_counter()
                 model.translate_gbuffers(scene.name, gbuffers, args.batch)
-                if model.cuda:
+                if model.device.type == "cuda":
                     torch.cuda.synchronize()
                 times.append(time.perf_counter() - t0)
             res = {"model_fps": args.frames / statistics.median(times),
