@@ -146,6 +146,8 @@ class Trainer:
         self.amp = self.channels_last and cfg.amp
         if self.channels_last:
             self.method.memory_format = torch.channels_last
+        if self.cuda:  # every step has the same sizes: let cuDNN time its kernels once and keep the fastest
+            torch.backends.cudnn.benchmark = not cfg.deterministic
 
         self.sources = resolve_scenes(scenes, cfg.data.height, cfg.data.width)
         self.real = RealImages(real)
