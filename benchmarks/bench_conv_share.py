@@ -34,6 +34,9 @@ from pathlib import Path
 import torch
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from bench_train import _inputs, _sync  # noqa: E402
+
 CONV_OPS = ("aten::convolution", "aten::convolution_backward")
 BF16_PEAK_TFLOPS = (  # dense, no sparsity; first match of the device name wins
     ("H200", 989.0), ("H100 NVL", 835.0), ("H100 PCIe", 756.0), ("H100", 989.0),
@@ -58,11 +61,6 @@ def matmul_tflops(device: torch.device, n: int = 2048, repeats: int = 5) -> floa
         _sync(device)
         times.append(time.perf_counter() - t0)
     return 2 * n**3 / statistics.median(times[1:]) / 1e12
-
-
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize()
 
 
 def conv_flops(step) -> int:
@@ -110,9 +108,6 @@ def main() -> None:
     from sim2real.data.datasets import TrainPairs, resolve_scenes
     from sim2real.data.real import RealImages
     from sim2real.engine.trainer import Trainer
-
-    sys.path.insert(0, str(HERE))
-    from bench_train import _inputs
 
     with tempfile.TemporaryDirectory(prefix="bench_conv_") as tmp:
         base = Path(tmp)
