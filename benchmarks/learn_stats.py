@@ -12,9 +12,9 @@ and compares simple image statistics in [0, 1]:
 A learning run should move them towards 0 between step 0 and the latest checkpoint.
 
 Texture detail: ``a_tex_gradient`` is the same gradient statistic on the projected neural
-texture a_tex of the same views (its N features averaged, mapped to [0, 1]). At step 0 every
-object's texture is one colour, so only object outlines contribute; detail learned on the
-textures raises it.
+texture a_tex of the same views (its N features averaged, mapped to [0, 1]), taken inside
+objects only (object outlines are left out). At step 0 every object's texture is one colour,
+so it is 0 up to interpolation; detail learned on the textures raises it.
 ``--texture-png PATH`` writes the latest checkpoint's textures (``tanh`` of the texels, first 3
 features as RGB) as one image per scene: a row per object, the 6 planes ``+x -x +y -y +z -z``
 side by side, each object stretched to its own value range.
@@ -34,11 +34,17 @@ from torch.utils.data import default_collate
 EVAL_SEED = 987654321
 
 
-def gradient(grey: torch.Tensor) -> float:
-    """Mean gradient magnitude (forward differences) of (K, H, W) images."""
+def gradient(grey: torch.Tensor, object_id: torch.Tensor | None = None) -> float:
+    """Mean gradient magnitude (forward differences) of (K, H, W) images; with ``object_id``
+    (K, H, W) only where a pixel and its right and lower neighbours show the same object."""
     gx = grey[:, :, 1:] - grey[:, :, :-1]
     gy = grey[:, 1:, :] - grey[:, :-1, :]
-    return float(torch.sqrt(gx[:, :-1, :] ** 2 + gy[:, :, :-1] ** 2).mean())
+    mag = torch.sqrt(gx[:, :-1, :] ** 2 + gy[:, :, :-1] ** 2)
+    if object_id is None:
+        return float(mag.mean())
+    o = object_id[:, :-1, :-1]
+    inside = (o >= 0) & (o == object_id[:, :-1, 1:]) & (o == object_id[:, 1:, :-1])
+    return float(mag[inside].mean())
 
 
 def image_stats(images: torch.Tensor) -> dict:
@@ -118,6 +124,7 @@ def main() -> None:
     ds = TrainPairs(sources, RealImages(latest["inputs"]["real"], verify=False), cfg.data, seed=EVAL_SEED)
     batches = [default_collate([ds[s]]) for s in range(args.samples)]
     real = image_stats(torch.cat([b["real"] for b in batches]))
+    object_ids = torch.cat([b["object_id_i"] for b in batches])
     a_ref = image_stats(torch.cat([b["a_ref_i"] for b in batches]))
     result = {"run": str(args.run), "samples": args.samples, "real": real,
               "a_ref": {**a_ref, "distance_to_real": distance(a_ref, real)}}
@@ -125,7 +132,7 @@ def main() -> None:
         b_hat, a_tex = translate(state, batches)
         s = image_stats(b_hat)
         result[name] = {"step": state["step"], **s, "distance_to_real": distance(s, real),
-                        "a_tex_gradient": gradient((a_tex.float().mean(1) + 1) / 2)}
+                        "a_tex_gradient": gradient((a_tex.float().mean(1) + 1) / 2, object_ids)}
     if args.texture_png:
         result["texture_png"] = [str(p) for p in save_textures(latest, args.texture_png)]
     print(json.dumps(result, indent=2))
