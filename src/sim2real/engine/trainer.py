@@ -45,7 +45,6 @@ from sim2real.engine.observe import Observer
 from sim2real.errors import UserError
 from sim2real.threads import single_thread_worker
 
-
 _HOST_KEYS = ("scene", "step")  # batch entries that stay on the CPU (read by Python)
 _IMAGE_KEYS = ("a_ref_i", "a_ref_j", "real")
 
