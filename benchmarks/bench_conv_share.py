@@ -52,6 +52,18 @@ def data_sheet_peak(name: str) -> float | None:
     return None
 
 
+def seconds(fn, device: torch.device, repeats: int) -> list[float]:
+    """Wall-clock seconds of ``repeats`` calls of ``fn``, synchronised on CUDA."""
+    times = []
+    for _ in range(repeats):
+        _sync(device)
+        t0 = time.perf_counter()
+        fn()
+        _sync(device)
+        times.append(time.perf_counter() - t0)
+    return times
+
+
 def practical_peak_tflops(device: torch.device, repeats: int = 5) -> float:
     """fp32 TFLOP/s of the faster of a 2048^3 matmul and a 256 -> 256 channel 3x3 convolution
     at 64x128 (on AMD CPUs the matmul library can be the slower one), median of ``repeats``."""
@@ -60,14 +72,8 @@ def practical_peak_tflops(device: torch.device, repeats: int = 5) -> float:
     x, k = torch.randn(1, c, h + 2, w + 2, device=device), torch.randn(c, c, 3, 3, device=device)
     rates = []
     for fn, flops in ((lambda: torch.mm(a, b), 2 * n**3), (lambda: torch.conv2d(x, k), 2 * c * c * 9 * h * w)):
-        times = []
-        for _ in range(repeats + 1):
-            _sync(device)
-            t0 = time.perf_counter()
-            fn()
-            _sync(device)
-            times.append(time.perf_counter() - t0)
-        rates.append(flops / statistics.median(times[1:]) / 1e12)
+        fn()  # warm-up
+        rates.append(flops / statistics.median(seconds(fn, device, repeats)) / 1e12)
     return max(rates)
 
 
@@ -133,13 +139,7 @@ def main() -> None:
 
         for _ in range(args.warmup):
             step()
-        times = []
-        for _ in range(args.steps):
-            _sync(device)
-            t0 = time.perf_counter()
-            step()
-            _sync(device)
-            times.append(time.perf_counter() - t0)
+        times = seconds(step, device, args.steps)
         flops = conv_flops(step)
         conv_s = conv_seconds(step, device, args.steps)
         peak_mem = torch.cuda.max_memory_allocated() / 2**20 if device.type == "cuda" else None
