@@ -259,21 +259,24 @@ class Trainer:
             out[k] = v
         return out
 
-    def _update(self, side: str, losses: dict[str, torch.Tensor], optimizers: list, step: int) -> None:
-        """One optimiser step of ``side`` on the sum of its (finite) loss terms."""
+    def _update(self, losses: dict[str, torch.Tensor], optimizers: list) -> torch.Tensor:
+        """One optimiser step on the sum of ``losses``; returns that sum, detached."""
         total = sum(losses.values())
-        self._check_finite(side, losses, total, step)
         for o in optimizers:
             o.zero_grad(set_to_none=True)
         total.backward()
         for o in optimizers:
             o.step()
+        return total.detach()
 
-    def _check_finite(self, side: str, losses: dict[str, torch.Tensor], total: torch.Tensor, step: int) -> None:
-        if not distributed.any_true(self.dist, ~torch.isfinite(total.detach())):
+    def _check_finite(self, losses: dict[str, torch.Tensor], totals: tuple[torch.Tensor, ...], step: int) -> None:
+        """Stop on a non-finite loss. Checked once per step, after both updates: one host sync (and
+        one all-reduce under DDP) instead of one before each backward, so a GPU step is not drained
+        twice. The bad step's update is then applied in memory, but no checkpoint follows it."""
+        if not distributed.any_true(self.dist, ~torch.isfinite(torch.stack(totals)).all()):
             return
         bad = [(k, v.item()) for k, v in losses.items() if not math.isfinite(v.item())]
-        where = f"loss {side}/{bad[0][0]} became {bad[0][1]}" if bad else f"a {side} loss became non-finite on another rank"
+        where = f"loss {bad[0][0]} became {bad[0][1]}" if bad else "a loss became non-finite on another rank"
         last = str(self.last_checkpoint) if self.last_checkpoint else "none"
         raise UserError(f"{where} at step {step}; stopping. Last good checkpoint: {last}")
 
@@ -288,19 +291,21 @@ class Trainer:
         with self._autocast():
             out = self.gen_ddp(self.method.translate, batch, step)
             d_losses = self.dis_ddp(self.method.dis_losses, batch, out)
-        self._update("dis", d_losses, dis_opts, step)
+        d_total = self._update(d_losses, dis_opts)
 
         self._set_dis_grad(False)
         try:
             with self._autocast():
                 g_losses = self.method.gen_losses(self.dis, batch, out, step)
-            self._update("gen", g_losses, gen_opts, step)
+            g_total = self._update(g_losses, gen_opts)
         finally:
             self._set_dis_grad(True)
         for s in self.schedulers.values():
             s.step()
         self.last_out = out
-        return {**{f"dis/{k}": v.detach() for k, v in d_losses.items()}, **{f"gen/{k}": v.detach() for k, v in g_losses.items()}}
+        losses = {**{f"dis/{k}": v.detach() for k, v in d_losses.items()}, **{f"gen/{k}": v.detach() for k, v in g_losses.items()}}
+        self._check_finite(losses, (d_total, g_total), step)
+        return losses
 
     def _loader(self):
         w = self.cfg.data.workers
@@ -364,7 +369,10 @@ class Trainer:
 
     def _past(self, deadline: float) -> bool:
         """Whether any rank's clock is past ``deadline`` (so that all ranks stop at the same step)."""
-        return distributed.any_true(self.dist, torch.tensor(time.perf_counter() > deadline, device=self.device))
+        past = time.perf_counter() > deadline
+        if not self.dist.enabled:  # no collective: no device round trip either
+            return past
+        return distributed.any_true(self.dist, torch.tensor(past, device=self.device))
 
     def close(self) -> None:
         distributed.teardown(self.dist)
