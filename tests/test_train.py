@@ -10,11 +10,13 @@ import torch
 from PIL import Image
 from torch.utils.data import default_collate
 
-from sim2real.data.datasets import TrainPairs, resolve_scenes
+from sim2real.data.datasets import PAIR_TRIES, TrainPairs, resolve_scenes
 from sim2real.data.real import RealImages, random_resized_crop, to_rgb
 from sim2real.engine.method import METHODS, get_method
 from sim2real.engine.trainer import Trainer
 from sim2real.errors import UserError
+from sim2real.render.gbuffer import GBuffer
+from sim2real.render.warp import correspondences
 from train_data import real_dir, scene_dir, tiny_config, views_dir
 
 EVAL_STEPS = (1000, 1001, 1002)  # held-out samples: never drawn by a 10-iteration run
@@ -314,3 +316,47 @@ def test_loader_workers_do_not_change_the_data(inputs, tmp_path):
     assert [int(b["step"]) for b in streams[0]] == [1, 2]
     for b0, b2 in zip(*streams):
         assert all(torch.equal(b0[k], b2[k]) for k in b0)
+
+
+@pytest.mark.parametrize("cores,local_world,expected", [(16, None, 8), (16, "4", 3), (64, "8", 7), (2, None, 1),
+                                                         (1, None, 1), (3, "2", 1)])
+def test_automatic_loader_workers(monkeypatch, cores, local_world, expected):
+    """data.workers = -1: the node's usable cores split among its ranks, less one for training,
+    1 to AUTO_WORKERS_MAX (8); an explicit count is kept."""
+    from sim2real.engine import trainer as trainer_module
+
+    monkeypatch.setattr(trainer_module, "usable_cores", lambda: cores)
+    if local_world is None:
+        monkeypatch.delenv("LOCAL_WORLD_SIZE", raising=False)
+    else:
+        monkeypatch.setenv("LOCAL_WORLD_SIZE", local_world)
+    assert trainer_module.loader_workers(-1) == expected
+    assert trainer_module.loader_workers(0) == 0 and trainer_module.loader_workers(5) == 5
+
+
+def test_low_overlap_redraws_view_j_only(inputs, tmp_path_factory):
+    """A pair below data.min_overlap keeps view i and draws a new j: with an unreachable
+    threshold every try is made, i is the first draw of the step, and the best j is kept."""
+    scenes, real = inputs
+    views = views_dir(tmp_path_factory.getbasetemp(), scene_dir(tmp_path_factory.getbasetemp(), 12))
+    cfg = tiny_config()
+    cfg.data.min_overlap = 1.0  # never reached: all PAIR_TRIES draws of j happen
+    sources = resolve_scenes([views], 64, 128)
+    ds = TrainPairs(sources, RealImages(real), cfg.data, seed=0)
+    calls = []
+    original = ds._view
+
+    def spy(src, rng, avoid=None):
+        k, g = original(src, rng, avoid)
+        calls.append((k, avoid))
+        return k, g
+
+    ds._view = spy
+    s = ds[3]
+    assert len(calls) == 1 + PAIR_TRIES
+    ki = calls[0][0]
+    assert calls[0][1] is None and all(avoid == ki and k != ki for k, avoid in calls[1:])
+    gi = GBuffer.load(sources[0].view_files[ki])
+    assert torch.equal(s["points_i"], torch.from_numpy(gi.points.astype(np.float32)))
+    overlaps = [float(correspondences(gi, GBuffer.load(sources[0].view_files[k]))[1].mean()) for k, _ in calls[1:]]
+    assert s["visible_ij"].float().mean().item() == pytest.approx(max(overlaps))

@@ -49,6 +49,35 @@ def test_unknown_and_malformed_keys(capsys, tmp_path, inputs):
     assert not (tmp_path / "run").exists()  # nothing written for a refused run
 
 
+@pytest.mark.parametrize("setting,words", [
+    ("texture.size=0", ["'texture.size'", ">= 1"]),
+    ("texture.mapping=sphere", ["'texture.mapping'", "box, cube"]),
+    ("generator.filters=0", ["'generator.filters'"]),
+    ("generator.content_channels=-1", ["'generator.content_channels'", ">= 0"]),
+    ("generator.upsample_norm=bn", ["'generator.upsample_norm'", "in, ln, none"]),
+    ("discriminator.pad_type=circular", ["'discriminator.pad_type'", "reflect"]),
+    ("discriminator.scales=0", ["'discriminator.scales'"]),
+    ("loss.ssim_scales=6", ["'loss.ssim_scales'", "1..5"]),
+    ("loss.cyc=-10", ["'loss.cyc'", ">= 0"]),
+    ("loss.vc_kind=cosine", ["'loss.vc_kind'", "angle, l1"]),
+    ("optim.lr_tex=.nan", ["'optim.lr_tex'", "nan"]),
+    ("optim.lr_net=0", ["'optim.lr_net'", "> 0"]),
+    ("optim.beta1=1.5", ["'optim.beta1'", "[0, 1)"]),
+    ("optim.weight_decay=-1e-4", ["'optim.weight_decay'"]),
+    ("data.min_overlap=1.5", ["'data.min_overlap'", "[0, 1]"]),
+    ("data.fov_x_deg=180", ["'data.fov_x_deg'", "170"]),
+    ("data.workers=-2", ["'data.workers'", ">= -1"]),
+    ("seed=-1", ["'seed'", ">= 0"]),
+    ("device=tpu", ["'device'", "auto, cpu, cuda"]),
+    # tiny: 2 scales; 6 layers need the coarse scale ceil(s / 2) >= 2^6, i.e. s >= 127 > 64
+    ("discriminator.layers=6", ["discriminator.layers=6", "at least 127 px", "64x128"]),
+    ("generator.downsamplings=6", ["generator.downsamplings=6", "at least 128 px"]),  # 64 / 2^6 = 1 row at the res blocks
+])
+def test_bad_config_values_are_refused_before_anything_is_written(capsys, tmp_path, inputs, setting, words):
+    assert_error(train(capsys, tmp_path, [inputs[0]], inputs[1], "--set", setting), *words)
+    assert not (tmp_path / "run").exists()
+
+
 def test_no_real_images(capsys, tmp_path, inputs):
     empty = tmp_path / "empty"
     (empty / "sub").mkdir(parents=True)

@@ -79,6 +79,37 @@ def test_discriminator_scales_and_sizes(h, w):
     assert [tuple(o.shape) for o in outs] == [(2, 1, a, b) for a, b in sizes]
 
 
+@pytest.mark.parametrize("scales,layers,pad", [(3, 4, "reflect"), (2, 4, "reflect"), (2, 2, "zero"), (1, 3, "reflect"),
+                                               (3, 1, "replicate")])
+def test_discriminator_min_input_side_is_the_smallest_that_runs(scales, layers, pad):
+    """The formula against torch itself: the side it names runs, one pixel less does not."""
+    from sim2real.models.discriminator import min_input_side
+
+    cfg = DiscriminatorConfig(filters=2, layers=layers, scales=scales, pad_type=pad)
+    side = min_input_side(cfg)
+    dis = MsImageDis(3, cfg)
+    outs = dis(torch.randn(1, 3, side, side + 7))
+    assert min(o.shape[-2] for o in outs) == 1  # the coarsest scale is down to one row
+    with pytest.raises(RuntimeError):
+        dis(torch.randn(1, 3, side - 1, side + 7))
+
+
+@pytest.mark.parametrize("d,pad", [(2, "reflect"), (3, "reflect"), (0, "reflect"), (2, "zero")])
+def test_generator_min_input_side_is_the_smallest_that_runs(d, pad):
+    from sim2real.models.translator import min_input_side
+
+    cfg = GeneratorConfig(filters=2, downsamplings=d, res_blocks=1, pad_type=pad)
+    side = min_input_side(cfg)
+    assert side % 2**d == 0
+    tr = Translator(3, cfg)
+    b_hat, _ = tr.a_to_b(torch.randn(1, 6, side, 2 * side))
+    assert b_hat.shape == (1, 3, side, 2 * side)
+    smaller = side - 2**d  # the next size the multiple-of-2^d rule admits
+    if smaller >= 1:
+        with pytest.raises(RuntimeError):
+            tr.a_to_b(torch.randn(1, 6, smaller, 2 * side))
+
+
 def test_discriminator_first_scale_sees_full_resolution_input():
     """Scale 0 is applied to the input itself, scale 1 to its 3x3/s2 average pool."""
     dis = MsImageDis(3, DiscriminatorConfig(filters=4, layers=2, scales=2))

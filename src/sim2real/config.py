@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import typing
 from dataclasses import dataclass, field
 from typing import Any
@@ -103,8 +104,13 @@ class DataConfig:
     real_scale_max: float = 1.2
     fov_x_deg: float = 75.0
     """Horizontal field of view of random simulated views rendered on the fly."""
-    workers: int = 2
-    """DataLoader worker processes (ray casting and image decoding happen there)."""
+    workers: int = -1
+    """DataLoader worker processes (ray casting and image decoding happen there); 0 loads in
+    the training process. -1 (automatic): the CPU cores this process may use, shared among the
+    ranks of its node, less one for the training process itself, at least 1 and at most
+    ``AUTO_WORKERS_MAX``. On the 2-core dev CPU one worker makes 4.3 paper-size samples/s from
+    fresh ray casts and 11 from cached views (benchmarks/bench_data.py), so 20 it/s needs 5 or
+    2 such cores."""
     min_overlap: float = 0.1
     """Fraction of view i's pixels that must be visible in view j; a pair below it is redrawn
     (up to 10 draws; then the draw with the largest overlap is used)."""
@@ -133,6 +139,94 @@ class TrainConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     data: DataConfig = field(default_factory=DataConfig)
+
+
+AUTO_WORKERS_MAX = 8
+"""Upper bound of ``data.workers = -1`` (more rarely pays and costs shared memory per worker)."""
+
+
+def validate(cfg: TrainConfig) -> None:
+    """Refuse a configuration whose values would fail later, or silently do something else.
+
+    Checks every field's domain (``method`` is checked where it is looked up,
+    :func:`sim2real.engine.method.get_method`), then the sizes that depend on each other (image
+    size vs the generator's downsamplings, the discriminator's depth and the MS-SSIM window).
+    Raises a :class:`UserError` naming the offending key.
+    """
+    from sim2real.losses.consistency import VC_KINDS
+    from sim2real.losses.ssim import MS_SSIM_WEIGHTS, check_ssim_size
+    from sim2real.models.discriminator import min_input_side as dis_min_side
+    from sim2real.models.layers import NORMS, PADS
+    from sim2real.models.translator import min_input_side as gen_min_side
+    from sim2real.scene.camera import FOV_RANGE_DEG, check_size
+    from sim2real.texture.neural_texture import MAPPINGS
+
+    def need(ok: bool, key: str, what: str, value: Any) -> None:
+        if not ok:
+            raise UserError(f"config key '{key}' must be {what}, got {value!r}")
+
+    def at_least(section: Any, prefix: str, names: str, low: int) -> None:
+        for name in names.split():
+            v = getattr(section, name)
+            need(v >= low, prefix + name, f">= {low}", v)
+
+    def choice(value: str, key: str, options) -> None:
+        need(value in options, key, "one of " + ", ".join(options), value)
+
+    def finite(v: float) -> bool:
+        return math.isfinite(v)
+
+    choice(cfg.device, "device", ("auto", "cpu", "cuda"))
+    at_least(cfg, "", "iterations checkpoint_every log_every image_every", 1)
+    at_least(cfg, "", "seed", 0)
+
+    t, g, d, L, o, dat = cfg.texture, cfg.generator, cfg.discriminator, cfg.loss, cfg.optim, cfg.data
+    at_least(t, "texture.", "size features", 1)
+    choice(t.mapping, "texture.mapping", MAPPINGS)
+    at_least(g, "generator.", "filters", 1)
+    at_least(g, "generator.", "downsamplings res_blocks content_channels", 0)
+    choice(g.upsample_norm, "generator.upsample_norm", NORMS)
+    choice(g.pad_type, "generator.pad_type", tuple(PADS))
+    at_least(d, "discriminator.", "filters layers scales", 1)
+    choice(d.norm, "discriminator.norm", NORMS)
+    choice(d.pad_type, "discriminator.pad_type", tuple(PADS))
+    for name in ("adv", "cyc", "rec", "content", "ssim_ab", "ssim_ba", "vc"):
+        v = getattr(L, name)
+        need(finite(v) and v >= 0, f"loss.{name}", "a finite weight >= 0", v)
+    need(1 <= L.ssim_scales <= len(MS_SSIM_WEIGHTS), "loss.ssim_scales", f"in 1..{len(MS_SSIM_WEIGHTS)}", L.ssim_scales)
+    at_least(L, "loss.", "vc_start", 0)
+    choice(L.vc_kind, "loss.vc_kind", VC_KINDS)
+    for name in ("lr_net", "lr_tex"):
+        v = getattr(o, name)
+        need(finite(v) and v > 0, f"optim.{name}", "a finite learning rate > 0", v)
+    for name in ("beta1", "beta2"):
+        v = getattr(o, name)
+        need(0 <= v < 1, f"optim.{name}", "in [0, 1)", v)
+    need(finite(o.weight_decay) and o.weight_decay >= 0, "optim.weight_decay", "finite and >= 0", o.weight_decay)
+    at_least(o, "optim.", "lr_halve_every", 1)
+    need(finite(dat.real_scale_max) and 0 < dat.real_scale_min <= dat.real_scale_max, "data.real_scale_min",
+         f"> 0 and <= data.real_scale_max ({dat.real_scale_max})", dat.real_scale_min)
+    at_least(dat, "data.", "workers", -1)
+    need(0 <= dat.min_overlap <= 1, "data.min_overlap", "a fraction in [0, 1]", dat.min_overlap)
+    lo, hi = FOV_RANGE_DEG
+    need(lo <= dat.fov_x_deg <= hi, "data.fov_x_deg", f"in [{lo:g}, {hi:g}] degrees", dat.fov_x_deg)
+    check_size(dat.height, dat.width)
+
+    step = 2**g.downsamplings
+    if dat.height % step or dat.width % step:
+        raise UserError(f"data.height and data.width must be multiples of {step} (2**generator.downsamplings), "
+                        f"got {dat.height}x{dat.width}")
+    short = min(dat.height, dat.width)
+    for side, what in ((gen_min_side(g), f"generator.downsamplings={g.downsamplings}"),
+                       (dis_min_side(d), f"discriminator.scales={d.scales} with discriminator.layers={d.layers}")):
+        if short < side:
+            raise UserError(f"{what} needs images of at least {side} px on the short side, "
+                            f"got {dat.height}x{dat.width} (data.height x data.width)")
+    if L.ssim_ab or L.ssim_ba:
+        try:
+            check_ssim_size(dat.height, dat.width, L.ssim_win)
+        except ValueError as e:
+            raise UserError(str(e)) from None
 
 
 def _paper() -> TrainConfig:

@@ -9,6 +9,17 @@ worker calls :func:`single_thread_worker` first.
 
 from __future__ import annotations
 
+import os
+
+
+def usable_cores() -> int:
+    """CPU cores this process may run on (its affinity mask: a cluster job's or container's
+    share, which ``os.cpu_count`` does not see)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no affinity API (macOS, Windows)
+        return os.cpu_count() or 1
+
 
 def single_thread_worker(*_args) -> None:
     """Limit this process's BLAS/OpenMP pools (threadpoolctl) and torch to one thread each."""

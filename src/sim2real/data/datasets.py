@@ -152,16 +152,19 @@ class TrainPairs(torch.utils.data.Dataset):
         rng = self.rng(step)
         k = int(rng.integers(0, len(self.sources)))
         src = self.sources[k]
+        # View i is drawn once; a j that sees too little of it is redrawn (not the pair: half
+        # the ray casting of a redraw).
+        ki, gi = self._view(src, rng)
         best = None
         for _ in range(PAIR_TRIES):
-            gi, gj = self._pair(src, rng)
+            _, gj = self._view(src, rng, avoid=ki)
             uv, visible = correspondences(gi, gj)
             overlap = float(visible.mean())
             if best is None or overlap > best[0]:
-                best = (overlap, gi, gj, uv, visible)
+                best = (overlap, gj, uv, visible)
             if overlap >= self.cfg.min_overlap:
                 break
-        _, gi, gj, uv, visible = best
+        _, gj, uv, visible = best
         c = self.cfg
         real = self.real.sample(rng, c.height, c.width, c.real_scale_min, c.real_scale_max)
         out = {"step": torch.tensor(int(step)), "scene": torch.tensor(k)}
@@ -177,15 +180,21 @@ class TrainPairs(torch.utils.data.Dataset):
 
     # --- views ---------------------------------------------------------------------------------
 
-    def _pair(self, src: SceneSource, rng: np.random.Generator):
+    def _view(self, src: SceneSource, rng: np.random.Generator, avoid: int | None = None):
+        """``(index, G-buffer)``: a cached view of ``src`` other than number ``avoid`` (index into
+        its files), or a fresh random pose ray-cast now (index None)."""
         if src.cached:
-            i, j = rng.choice(len(src.view_files), size=2, replace=False)
-            return self._cached_view(src.view_files[int(i)]), self._cached_view(src.view_files[int(j)])
+            n = len(src.view_files)
+            k = int(rng.integers(0, n if avoid is None else n - 1))
+            if avoid is not None and k >= avoid:
+                k += 1
+            return k, self._cached_view(src.view_files[k])
         from sim2real.scene.trajectory import sample_poses
 
         caster = self._caster(src)
-        cams = sample_poses(caster, 2, self.cfg.height, self.cfg.width, self.cfg.fov_x_deg, seed=int(rng.integers(0, 2**31)))
-        return caster.render(cams[0]), caster.render(cams[1])
+        c = self.cfg
+        cam = sample_poses(caster, 1, c.height, c.width, c.fov_x_deg, seed=int(rng.integers(0, 2**31)))[0]
+        return None, caster.render(cam)
 
     def _caster(self, src: SceneSource):
         if os.getpid() != self._pid:  # a forked worker must not reuse the parent's Embree objects

@@ -35,7 +35,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from sim2real.config import TrainConfig, to_dict
+from sim2real.config import AUTO_WORKERS_MAX, TrainConfig, to_dict, validate
 from sim2real.data.datasets import StepSampler, TrainPairs, resolve_scenes
 from sim2real.data.real import RealImages
 from sim2real.engine import checkpoint as ckpt
@@ -43,7 +43,7 @@ from sim2real.engine import distributed, precision
 from sim2real.engine.method import get_method
 from sim2real.engine.observe import Observer
 from sim2real.errors import UserError
-from sim2real.threads import single_thread_worker
+from sim2real.threads import single_thread_worker, usable_cores
 
 _HOST_KEYS = ("scene", "step")  # batch entries that stay on the CPU (read by Python)
 _IMAGE_KEYS = ("a_ref_i", "a_ref_j", "real")
@@ -61,30 +61,14 @@ def resolve_device(name: str, local_rank: int = 0) -> torch.device:
     return device
 
 
-def check_config(cfg: TrainConfig) -> None:
-    """Refuse configurations that would fail later with an obscure error."""
-    from sim2real.losses.ssim import check_ssim_size
-
-    d = cfg.data
-    step = 2**cfg.generator.downsamplings
-    if d.height % step or d.width % step:
-        raise UserError(f"data.height and data.width must be multiples of {step} (2**generator.downsamplings), "
-                        f"got {d.height}x{d.width}")
-    if cfg.iterations < 1 or cfg.checkpoint_every < 1 or cfg.log_every < 1 or cfg.image_every < 1:
-        raise UserError("iterations, checkpoint_every, log_every and image_every must be >= 1")
-    if not 0 < d.real_scale_min <= d.real_scale_max:
-        raise UserError(f"need 0 < data.real_scale_min <= data.real_scale_max, got {d.real_scale_min}, {d.real_scale_max}")
-    if d.workers < 0:
-        raise UserError(f"data.workers must be >= 0, got {d.workers}")
-    if cfg.loss.vc_kind not in ("angle", "l1"):
-        raise UserError(f"loss.vc_kind must be 'angle' or 'l1', got '{cfg.loss.vc_kind}'")
-    if cfg.optim.lr_halve_every < 1:
-        raise UserError("optim.lr_halve_every must be >= 1")
-    if cfg.loss.ssim_ab or cfg.loss.ssim_ba:
-        try:
-            check_ssim_size(d.height, d.width, cfg.loss.ssim_win)
-        except ValueError as e:
-            raise UserError(str(e)) from None
+def loader_workers(workers: int) -> int:
+    """``data.workers`` with -1 (automatic) resolved: the cores this process may use, shared by
+    the ranks of its node (``LOCAL_WORLD_SIZE``, set by torchrun), less one for the training
+    process itself; at least 1, at most ``AUTO_WORKERS_MAX``."""
+    if workers >= 0:
+        return workers
+    per_rank = usable_cores() // max(1, int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
+    return max(1, min(AUTO_WORKERS_MAX, per_rank - 1))
 
 
 def _adam(params, lr: float, cfg: TrainConfig, device: torch.device) -> torch.optim.Adam:
@@ -122,7 +106,7 @@ class Trainer:
         from sim2real.config import save_yaml
         from sim2real.fileio import prepare_output_dir
 
-        check_config(cfg)
+        validate(cfg)
         self.cfg = cfg
         self.method = get_method(cfg)
         state = resume_state if resume_state is not None else (ckpt.load_checkpoint(resume) if resume is not None else None)
@@ -308,7 +292,7 @@ class Trainer:
         return losses
 
     def _loader(self):
-        w = self.cfg.data.workers
+        w = loader_workers(self.cfg.data.workers)
         return torch.utils.data.DataLoader(
             self.dataset, batch_size=1, sampler=StepSampler(self.step, self.cfg.iterations), num_workers=w,
             pin_memory=self.cuda, prefetch_factor=4 if w else None, persistent_workers=False,

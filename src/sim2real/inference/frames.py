@@ -13,6 +13,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 import numpy as np
 
 from sim2real.render.gbuffer import KEYS, GBuffer
+from sim2real.threads import usable_cores
 
 POOL_MIN_RAYS = 32 * 256 * 512
 """Below this many rays in all (about 2-3 s of casting on one core) the rays are cast in-process:
@@ -38,7 +39,7 @@ def _render(camera) -> GBuffer:
 def auto_workers(cameras: Sequence) -> int:
     """Ray-casting processes for ``cameras``: 1 (in-process) for short or small sequences or on
     one core, else ``min(cores, 4)``."""
-    cores = os.cpu_count() or 1
+    cores = usable_cores()
     rays = sum(int(c.height) * int(c.width) for c in cameras)
     if rays < POOL_MIN_RAYS or cores < 2 or len(cameras) < 4:
         return 1

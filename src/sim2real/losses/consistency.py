@@ -63,6 +63,10 @@ def masked_l1_loss(b_i: torch.Tensor, b_j_warped: torch.Tensor, mask: torch.Tens
     return _masked_mean((b_i.float() - b_j_warped.float()).abs().mean(1), mask)
 
 
+VC_KINDS = ("angle", "l1")
+"""``loss.vc_kind`` options: the lighting-invariant angle (paper) and the L1 ablation."""
+
+
 def view_consistency(kind: str, b_i: torch.Tensor, b_j_warped: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Dispatch on ``loss.vc_kind``: 'angle' (paper) or 'l1' (ablation)."""
     if kind == "angle":

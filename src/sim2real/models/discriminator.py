@@ -16,6 +16,13 @@ from sim2real.config import DiscriminatorConfig
 from sim2real.models.layers import Conv2dBlock, init_weights
 
 
+def min_input_side(cfg: DiscriminatorConfig) -> int:
+    """Smallest image side the discriminator takes: its coarsest scale (``ceil(s / 2**(scales-1))``)
+    must still be ``>= 2**layers``, so that every conv4 stride 2 gets at least 2 pixels (what
+    reflect padding by 1 needs) and the last one gives an output, whatever the padding."""
+    return (2**cfg.layers - 1) * 2 ** (cfg.scales - 1) + 1
+
+
 class MsImageDis(nn.Module):
     """``forward(x) -> list`` of ``scales`` raw (B, 1, h_k, w_k) score maps; N(0, 0.02) init."""
 

@@ -14,6 +14,7 @@ import torch.nn.functional as F
 from torch import nn
 
 PADS = {"reflect": nn.ReflectionPad2d, "replicate": nn.ReplicationPad2d, "zero": nn.ZeroPad2d}
+NORMS = ("in", "ln", "none")
 
 
 class LayerNorm(nn.Module):
@@ -59,7 +60,7 @@ def make_norm(kind: str, channels: int) -> nn.Module | None:
         return LayerNorm(channels)
     if kind == "none":
         return None
-    raise ValueError(f"unknown norm {kind!r} (choose 'in', 'ln' or 'none')")
+    raise ValueError(f"unknown norm {kind!r} (choose {', '.join(NORMS)})")
 
 
 def make_activation(kind: str) -> nn.Module | None:

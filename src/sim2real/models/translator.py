@@ -36,6 +36,15 @@ def content_width(cfg: GeneratorConfig) -> int:
     return cfg.filters * 2**cfg.downsamplings
 
 
+def min_input_side(cfg: GeneratorConfig) -> int:
+    """Smallest image side the encoders and decoders take. Reflect padding needs more pixels
+    than it pads: 4 for the conv7 layers, and 2 at the content resolution (side / 2^d) for the
+    residual and content conv3 layers; zero and replicate padding only need side / 2^d >= 1."""
+    if cfg.pad_type == "reflect":
+        return max(4, 2 ** (cfg.downsamplings + 1))
+    return 2**cfg.downsamplings
+
+
 class Encoder(nn.Module):
     """Image (B, cin, H, W) -> content code (B, c or w, H / 2^d, W / 2^d)."""
 

@@ -38,11 +38,16 @@ class Camera:
         return self.camera_to_world[:3, 3]
 
 
+FOV_RANGE_DEG = (1.0, 170.0)
+"""Horizontal fields of view that :func:`intrinsics_from_fov` accepts."""
+
+
 def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> np.ndarray:
     """Square-pixel pinhole K with the principal point at the image centre."""
     check_size(height, width)
-    if not 1.0 <= fov_x_deg <= 170.0:
-        raise UserError(f"field of view must be in [1, 170] degrees, got {fov_x_deg}")
+    lo, hi = FOV_RANGE_DEG
+    if not lo <= fov_x_deg <= hi:
+        raise UserError(f"field of view must be in [{lo:g}, {hi:g}] degrees, got {fov_x_deg}")
     f = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2.0)
     return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
 

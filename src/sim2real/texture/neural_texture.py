@@ -66,6 +66,8 @@ from sim2real.config import TextureConfig
 
 PLANES = ("+x", "-x", "+y", "-y", "+z", "-z")
 """Plane order along dimension 1 of the texture."""
+MAPPINGS = ("box", "cube")
+"""``texture.mapping`` options (see the module docstring)."""
 IN_PLANE_AXES = ((1, 2), (0, 2), (0, 1))
 """(u, v) world axes spanning the planes of axis x, y, z."""
 INIT_CLIP = 0.99
@@ -93,7 +95,7 @@ class NeuralTexture(nn.Module):
     def __init__(self, num_objects: int, bboxes, colours=None, cfg: TextureConfig | None = None):
         super().__init__()
         cfg = cfg if cfg is not None else TextureConfig()
-        if cfg.mapping not in ("box", "cube"):
+        if cfg.mapping not in MAPPINGS:
             raise ValueError(f"texture.mapping must be 'box' or 'cube', got {cfg.mapping!r}")
         if cfg.size < 1 or cfg.features < 1:
             raise ValueError(f"texture.size and texture.features must be >= 1, got {cfg.size}, {cfg.features}")
