@@ -69,3 +69,20 @@ def test_demo_refuses_a_used_output_folder(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.txt"]
+
+
+@pytest.mark.parametrize("extra,words", [
+    (["--frames", "1"], "at least 2 frames"),
+    (["--fid-weights", "/nonexistent/pt_inception.pth"], "FID Inception weights not found"),
+    (["--device", "cuda"], "no CUDA device"),
+])
+def test_demo_refuses_settings_that_would_fail_after_training(tmp_path, capsys, extra, words, monkeypatch):
+    """Settings of the last two stages are checked before the first: nothing is written, no
+    minutes of training are spent on them."""
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    code = main(["demo", "--out", str(tmp_path / "out"), "--minutes", "0.05", "--preset", "tiny", *extra])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and words in err, err
+    assert not (tmp_path / "out").exists()

@@ -54,9 +54,11 @@ def demo_config(preset_name: str | None, cuda: bool, device: str):
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from sim2real.engine.trainer import Trainer
+    from sim2real.config import validate
+    from sim2real.engine.trainer import Trainer, resolve_device
     from sim2real.fileio import atomic_write_json, prepare_output_dir
-    from sim2real.inference.evaluate import EvalSettings, evaluate
+    from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate
+    from sim2real.metrics.realism import fid_weights_status
     from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
     from sim2real.render.raycast import RayCaster
     from sim2real.render.realdomain import make_real_domain
@@ -67,6 +69,13 @@ def run(args: argparse.Namespace) -> int:
     cuda = args.device == "cuda" or (args.device == "auto" and torch.cuda.is_available())
     cfg = demo_config(args.preset, cuda, args.device)
     h, w = cfg.data.height, cfg.data.width
+    settings = EvalSettings(views=args.eval_views, frames=args.frames, seg_iterations=args.seg_iterations,
+                            seg_height=h, seg_width=w, seed=args.seed)
+    # what would otherwise fail after the training: refused before anything is written
+    validate(cfg)
+    resolve_device(args.device)
+    check_settings(settings)
+    fid_weights_status(args.fid_weights)
     out = prepare_output_dir(args.out)
     t0 = time.perf_counter()
 
@@ -92,8 +101,6 @@ def run(args: argparse.Namespace) -> int:
     translate_sequence(model, trajectory_source(model, sim_dirs[0], traj_path), out / "video")
 
     print("demo: 5/5 evaluation", flush=True)
-    settings = EvalSettings(views=args.eval_views, frames=args.frames, seg_iterations=args.seg_iterations,
-                            seg_height=h, seg_width=w, seed=args.seed)
     metrics = evaluate(out / "run", [str(sim_dirs[0])], out / "real", out / "evaluation", trajectories=[traj_path],
                        settings=settings, fid_weights=args.fid_weights, device=args.device)
     atomic_write_json(out / "demo.json", {

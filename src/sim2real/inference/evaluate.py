@@ -221,7 +221,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     from sim2real.scene.trajectory import Trajectory, make_trajectory, sample_poses
 
     s = settings or EvalSettings()
-    _check_settings(s)
+    check_settings(s)
     t_start = time.perf_counter()
     say = (lambda msg: print(f"evaluate: {msg}", file=sys.stderr, flush=True)) if progress else (lambda msg: None)
 
@@ -411,7 +411,8 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     return metrics
 
 
-def _check_settings(s: EvalSettings) -> None:
+def check_settings(s: EvalSettings) -> None:
+    """Refuse settings outside their range (a :class:`UserError`)."""
     for name in ("views", "frames", "batch", "max_real", "seg_height", "seg_width", "seg_batch", "orb_features",
                  "orb_max_k", "kid_subset_size", "kid_subsets", "samples"):
         if getattr(s, name) < (0 if name == "samples" else 1):
