@@ -8,7 +8,9 @@ the process's peak memory (max RSS on CPU, max allocated on CUDA), for
   discriminator step, whole-texture tanh + gather/scatter projection with precomputed index
   lists, plain Adam);
 
-and their ratio. Both run on the same pre-generated batches (data loading is not timed; it
+and their ratio (of the median step times; ``paired_ratio_median`` is the median over rounds of
+reference/ours step time, each round running the two back to back). Both run on the same
+pre-generated batches (data loading is not timed; it
 runs in DataLoader workers during training). Timing runs both implementations in one process,
 alternating step by step, so that load from other processes hits both alike; peak memory comes
 from a fresh process per implementation. Also: texture projection forward + backward (ms) at
@@ -125,6 +127,10 @@ def child(preset: str, impls: list[str], iters: int, base: Path, device_name: st
         med = statistics.median(timed)
         result[impl] = {"s_per_iteration": round(med, 4), "iterations_per_s": round(1.0 / med, 4),
                         "timed_iterations": len(timed)}
+    if {"ours", "reference"} <= set(times) and len(times["ours"]) > WARMUP[preset]:
+        # the two steps of one round ran back to back: their ratio cancels slow drifts of the load
+        pairs = [r / o for o, r in zip(times["ours"][WARMUP[preset]:], times["reference"][WARMUP[preset]:])]
+        result["paired_ratio_median"] = round(statistics.median(pairs), 3)
     return result
 
 
@@ -214,6 +220,7 @@ def main() -> None:
                 entry[impl]["memory_kind"] = alone["memory_kind"]
             entry["throughput_ratio_ours_over_reference"] = round(
                 entry["ours"]["iterations_per_s"] / entry["reference"]["iterations_per_s"], 2)
+            entry["paired_ratio_median"] = both["paired_ratio_median"]
             result["presets"][preset] = entry
             print(json.dumps({preset: entry}), file=sys.stderr)
         result["projection"] = projection_ms(base)

@@ -1,0 +1,102 @@
+#!/usr/bin/env bash
+# The GPU measurements of issues 4 and 5, prepared for a lent GPU machine (the workplace's device
+# tool), where a session has 15 minutes of device time, 10 minutes per command and no network.
+# Each mode leaves one $OUT/MODE.tar.gz (benchmark JSON, logs, the demo's report and images; the
+# tool brings back at most 8 files) and prints the stage summary and every JSON result, so that
+# the command's output alone already holds the figures.
+#
+#   bash benchmarks/gpu_checks.sh fetch     here, once: .whl/ with what the GPU image lacks (cp312:
+#                                           av, embreex, trimesh, pytorch-msssim; ~50 MB). The image
+#                                           has torch, numpy, scipy, opencv, PIL, torchmetrics,
+#                                           tensorboard, tqdm, PyYAML, threadpoolctl and pytest.
+#   bash benchmarks/gpu_checks.sh checks    there (carry .whl): CUDA tests, training step (ours vs the
+#                                           authors' organisation), conv share of the bf16 peak,
+#                                           translation frames/s, loader samples/s   (~5 min)
+#   bash benchmarks/gpu_checks.sh demo      there (carry .whl): `sim2real demo` on the paper preset,
+#                                           DEMO_MINUTES (4) of training, then the learning statistics
+#   PY=.venv/bin/python DEV=cpu bash benchmarks/gpu_checks.sh smoke
+#                                           here: the same stages at tiny sizes on the CPU, to check
+#                                           the script itself before device time is spent on it
+#
+# Each stage has its own time limit; a stage that fails or runs out is logged and the next one runs.
+set -u
+cd "$(dirname "$0")/.."
+MODE=${1:-checks}
+OUT=${OUT:-gpu_out}
+PY=${PY:-python3}
+DEV=${DEV:-cuda}
+W=$(mktemp -d /tmp/gpu_checks.XXXXXX)
+mkdir -p "$OUT"
+
+if [ "$MODE" = fetch ]; then
+    grep -qx '/.whl/' .git/info/exclude 2>/dev/null || echo '/.whl/' >> .git/info/exclude
+    mkdir -p .whl
+    for pkg in av embreex trimesh pytorch-msssim; do
+        python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+            --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 \
+            --platform manylinux2014_x86_64 -d .whl "$pkg" || exit 1
+    done
+    du -sh .whl
+    exit 0
+fi
+
+if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
+    "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
+        || { echo "wheel install failed"; exit 1; }
+    export PYTHONPATH=/tmp/site
+fi
+export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
+
+finish() {  # always: one archive, and the figures on stdout
+    tar -czf "$OUT/$MODE.tar.gz" -C "$W" . 2>/dev/null
+    echo "== stages"; cat "$W/stages.txt" 2>/dev/null
+    for f in "$W"/*.json; do [ -f "$f" ] && { echo "== $(basename "$f")"; cat "$f"; }; done
+}
+trap finish EXIT
+
+stage() {  # stage NAME SECONDS COMMAND...: stdout to NAME.json (JSON) or NAME.out, stderr to NAME.err
+    local name=$1 limit=$2; shift 2
+    local t0=$SECONDS
+    timeout "$limit" "$@" > "$W/$name.out" 2> "$W/$name.err"
+    local rc=$?
+    echo "$name: rc=$rc, $((SECONDS - t0)) s" >> "$W/stages.txt"
+    if head -c1 "$W/$name.out" 2>/dev/null | grep -q '{'; then mv "$W/$name.out" "$W/$name.json"; fi
+}
+
+if [ "$MODE" = smoke ]; then
+    PRESET=tiny; TRAIN_ITERS=tiny=5; CONV=(--preset tiny --steps 2 --warmup 1); DEMO=(--preset tiny --scenes 1
+        --real-images 8 --frames 6 --eval-views 4 --seg-iterations 5); DEMO_MINUTES=${DEMO_MINUTES:-0.1}
+    TRANSLATE=(--presets small --frames 4 --batch 2 --repeats 1); DATA=(--presets small --samples 4 --max-workers 1)
+else
+    PRESET=paper; TRAIN_ITERS=paper=40; CONV=(--preset paper); DEMO=(); DEMO_MINUTES=${DEMO_MINUTES:-4}
+    TRANSLATE=(--presets small,paper --frames 64 --batch 16 --repeats 3 --end-to-end)
+    DATA=(--presets paper --samples 30 --max-workers 8)
+fi
+
+case "$MODE" in
+checks|smoke)
+    { "$PY" -c "import torch, platform; print(platform.platform()); print('torch', torch.__version__, 'cuda', torch.version.cuda,
+'device', torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'none')"; nvidia-smi 2>/dev/null | head -15; } \
+        > "$W/environment.txt" 2>&1
+    stage pytest_cuda 180 "$PY" -m pytest -q -p no:cacheprovider -k cuda tests
+    stage bench_train 240 "$PY" benchmarks/bench_train.py --device "$DEV" --presets "$PRESET" --iters "$TRAIN_ITERS"
+    stage bench_conv_share 120 "$PY" benchmarks/bench_conv_share.py --device "$DEV" "${CONV[@]}"
+    stage bench_translate 150 "$PY" benchmarks/bench_translate.py --device "$DEV" "${TRANSLATE[@]}"
+    stage bench_data 120 "$PY" benchmarks/bench_data.py "${DATA[@]}"
+    [ "$MODE" = smoke ] || exit 0
+    ;&
+demo)
+    D=$W/demo_out
+    stage demo $((90 + ${DEMO_MINUTES%.*} * 60 + 240)) "$PY" -m sim2real.cli.main demo --out "$D" \
+        --minutes "$DEMO_MINUTES" --device "$DEV" "${DEMO[@]}"
+    if [ -d "$D/run/checkpoints" ]; then
+        stage learn_stats 120 "$PY" benchmarks/learn_stats.py "$D/run" --texture-png "$W/textures"
+        # keep the report, metrics, grids and video; drop what is large and can be made again
+        rm -rf "$D/run/checkpoints" "$D/video/frames" "$D/video/ground_truth" "$D/real" "$D/scenes"
+    fi
+    ;;
+*)
+    echo "usage: $0 fetch|checks|demo|smoke" >&2
+    exit 2
+    ;;
+esac
