@@ -109,11 +109,11 @@ class DataConfig:
     the training process. -1 (automatic): the CPU cores this process may use, shared among the
     ranks of its node, less one for the training process itself, at least 1 and at most
     ``AUTO_WORKERS_MAX``. On the 2-core dev CPU one worker makes 4.3 paper-size samples/s from
-    fresh ray casts and 11 from cached views (benchmarks/bench_data.py), so 20 it/s needs 5 or
-    2 such cores."""
+    fresh ray casts and 11 from cached views (benchmarks/bench_data.py), so 20 it/s needs 5 such
+    workers (cached: 3)."""
     min_overlap: float = 0.1
-    """Fraction of view i's pixels that must be visible in view j; a pair below it is redrawn
-    (up to 10 draws; then the draw with the largest overlap is used)."""
+    """Fraction of view i's pixels that must be visible in view j; below it view j is redrawn,
+    view i kept (up to 10 draws; then the j with the largest overlap is used)."""
 
 
 @dataclass
@@ -173,9 +173,6 @@ def validate(cfg: TrainConfig) -> None:
     def choice(value: str, key: str, options) -> None:
         need(value in options, key, "one of " + ", ".join(options), value)
 
-    def finite(v: float) -> bool:
-        return math.isfinite(v)
-
     choice(cfg.device, "device", ("auto", "cpu", "cuda"))
     at_least(cfg, "", "iterations checkpoint_every log_every image_every", 1)
     at_least(cfg, "", "seed", 0)
@@ -192,19 +189,19 @@ def validate(cfg: TrainConfig) -> None:
     choice(d.pad_type, "discriminator.pad_type", tuple(PADS))
     for name in ("adv", "cyc", "rec", "content", "ssim_ab", "ssim_ba", "vc"):
         v = getattr(L, name)
-        need(finite(v) and v >= 0, f"loss.{name}", "a finite weight >= 0", v)
+        need(math.isfinite(v) and v >= 0, f"loss.{name}", "a finite weight >= 0", v)
     need(1 <= L.ssim_scales <= len(MS_SSIM_WEIGHTS), "loss.ssim_scales", f"in 1..{len(MS_SSIM_WEIGHTS)}", L.ssim_scales)
     at_least(L, "loss.", "vc_start", 0)
     choice(L.vc_kind, "loss.vc_kind", VC_KINDS)
     for name in ("lr_net", "lr_tex"):
         v = getattr(o, name)
-        need(finite(v) and v > 0, f"optim.{name}", "a finite learning rate > 0", v)
+        need(math.isfinite(v) and v > 0, f"optim.{name}", "a finite learning rate > 0", v)
     for name in ("beta1", "beta2"):
         v = getattr(o, name)
         need(0 <= v < 1, f"optim.{name}", "in [0, 1)", v)
-    need(finite(o.weight_decay) and o.weight_decay >= 0, "optim.weight_decay", "finite and >= 0", o.weight_decay)
+    need(math.isfinite(o.weight_decay) and o.weight_decay >= 0, "optim.weight_decay", "finite and >= 0", o.weight_decay)
     at_least(o, "optim.", "lr_halve_every", 1)
-    need(finite(dat.real_scale_max) and 0 < dat.real_scale_min <= dat.real_scale_max, "data.real_scale_min",
+    need(math.isfinite(dat.real_scale_max) and 0 < dat.real_scale_min <= dat.real_scale_max, "data.real_scale_min",
          f"> 0 and <= data.real_scale_max ({dat.real_scale_max})", dat.real_scale_min)
     at_least(dat, "data.", "workers", -1)
     need(0 <= dat.min_overlap <= 1, "data.min_overlap", "a fraction in [0, 1]", dat.min_overlap)

@@ -58,8 +58,8 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.engine.trainer import Trainer, resolve_device
     from sim2real.fileio import atomic_write_json, prepare_output_dir
     from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate
-    from sim2real.metrics.realism import fid_weights_status
     from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
+    from sim2real.metrics.realism import fid_weights_status
     from sim2real.render.raycast import RayCaster
     from sim2real.render.realdomain import make_real_domain
     from sim2real.scene.procedural import generate_scene

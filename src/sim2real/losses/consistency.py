@@ -73,7 +73,7 @@ def view_consistency(kind: str, b_i: torch.Tensor, b_j_warped: torch.Tensor, mas
         return angle_loss(b_i, b_j_warped, mask)
     if kind == "l1":
         return masked_l1_loss(b_i, b_j_warped, mask)
-    raise ValueError(f"unknown loss.vc_kind {kind!r} (choose 'angle' or 'l1')")
+    raise ValueError(f"unknown loss.vc_kind {kind!r} (choose {' or '.join(VC_KINDS)})")
 
 
 def _check_pair(a: torch.Tensor, b: torch.Tensor) -> None:
