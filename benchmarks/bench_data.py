@@ -13,7 +13,8 @@ or a views folder of cached G-buffers):
   worker processes (the trainer's loader: batch 1, prefetch 4, one thread per worker), timed
   after the first batch.
 
-Real images are 960x540 PNGs (a laparoscope's frame size) decoded, resized and cropped per
+Real images are 960x540 PNGs of random noise (a laparoscope's frame size; noise is the slowest to
+decode), decoded, resized and cropped per
 sample. Usage: python benchmarks/bench_data.py [--presets paper,small] [--samples 30]
 [--max-workers N] [--target 20]
 """
