@@ -20,6 +20,20 @@ def sphere_mesh(centre, radius: float, subdivisions: int = 6) -> trimesh.Trimesh
     return m
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _private_cache(tmp_path_factory):
+    """Trained segmenters are cached under $SIM2REAL_CACHE: a fresh one per test session."""
+    import os
+
+    old = os.environ.get("SIM2REAL_CACHE")
+    os.environ["SIM2REAL_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if old is None:
+        os.environ.pop("SIM2REAL_CACHE", None)
+    else:
+        os.environ["SIM2REAL_CACHE"] = old
+
+
 @pytest.fixture(scope="module")
 def one_torch_thread():
     """torch on one thread for a module: 2 OpenMP threads on 2 shared, busy cores spin against

@@ -171,7 +171,7 @@ def test_endoscope_mask(frames, rigs):
 
 def test_same_point_same_albedo_from_two_views(rigs):
     caster, material = rigs[0]
-    traj = make_trajectory(caster, 12, H, W, 75.0, seed=3)
+    traj = make_trajectory(caster, 12, H, W, 75.0, seed=3, flow_budget=None, max_deg_per_frame=None, look="swing")
     gi, gj = caster.render(traj.cameras[0]), caster.render(traj.cameras[1])  # ~1 cm apart
     fi = render_frame(gi, material, RenderOptions(noise=0.0), seed=0)
     fj = render_frame(gj, material, RenderOptions(noise=0.0), seed=0)

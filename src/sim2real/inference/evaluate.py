@@ -42,9 +42,10 @@ from typing import Sequence
 import numpy as np
 
 from sim2real.errors import UserError
+from sim2real.inference.realset import find_real, fit_image, to_nchw
+from sim2real.inference.rows import PAPER_KS, ROWS, pool_orb, pool_rows, positions, scalars  # noqa: F401 (pool_orb: re-export)
 
-FORMAT = "sim2real-evaluation/1"
-PAPER_KS = (1, 5, 10)
+FORMAT = "sim2real-evaluation/2"
 
 
 @dataclass
@@ -60,10 +61,18 @@ class EvalSettings:
     seed: int = 0
     max_real: int = 500
     """Real images used for FID/KID and the proxy (a seeded random subset when there are more)."""
-    seg_iterations: int = 300
-    seg_height: int = 128
-    seg_width: int = 256
+    seg_iterations: int = 1500
+    """At most this many steps per segmenter; each stops earlier when its held-out Dice converges."""
+    seg_height: int = 64
+    seg_width: int = 128
+    """The segmenter's input size (the liver is large; 64x128 trains it four times faster than 128x256)."""
     seg_batch: int = 8
+    seg_seeds: int = 3
+    """Segmenters trained with seeds seed, seed+1, ...; Dice is their mean, unstable above seg_max_spread."""
+    seg_holdout: float = 0.2
+    """Share of the labelled real images held out (stopping criterion and the reported held-out Dice)."""
+    seg_check_every: int = 100
+    seg_max_spread: float = 0.05
     orb_features: int = 1000
     orb_max_k: int = 20
     """The ORB curve covers k = 1..orb_max_k (and always 1, 5, 10)."""
@@ -75,111 +84,14 @@ class EvalSettings:
     """Ray-casting processes (None: automatic)."""
     samples: int = 4
     """Sample views shown in the report."""
-
-
-# --- real images ---------------------------------------------------------------------------------
-
-
-@dataclass
-class RealSet:
-    root: Path
-    label_root: Path
-    images: list[Path]
-    labels: list[Path | None]
-    """Label file of each image, or None."""
-
-    @property
-    def labelled(self) -> list[tuple[Path, Path]]:
-        return [(i, l) for i, l in zip(self.images, self.labels) if l is not None]
-
-
-def find_real(directory: str | os.PathLike) -> RealSet:
-    """Real images and their labels.
-
-    ``DIR/images/`` + ``DIR/labels/`` (the stand-in real domain's layout): every image
-    ``images/REL.ext`` may have ``labels/REL.png``. Otherwise every PNG/JPEG under ``DIR`` is an
-    image (a ``DIR/labels/`` folder is skipped and read as above).
-    """
-    from sim2real.data.real import list_images
-
-    root = Path(directory)
-    if not root.is_dir():
-        raise UserError(f"real image folder {root} does not exist or is not a directory")
-    img_root = root / "images" if (root / "images").is_dir() else root
-    lab_root = root / "labels"
-    images = [p for p in list_images(img_root) if lab_root not in p.parents]
-    if not images:
-        raise UserError(f"no real images (png/jpg) found under {img_root}")
-    labels = []
-    for p in images:
-        lp = (lab_root / p.relative_to(img_root)).with_suffix(".png")
-        labels.append(lp if lab_root.is_dir() and lp.is_file() else None)
-    return RealSet(img_root, lab_root, images, labels)
-
-
-def fit_image(image: np.ndarray, height: int, width: int, nearest: bool = False) -> np.ndarray:
-    """Resize so that ``image`` covers ``height x width`` (aspect kept), then crop the centre."""
-    from PIL import Image
-
-    h, w = image.shape[:2]
-    if (h, w) == (height, width):
-        return image
-    s = max(height / h, width / w)
-    nh, nw = max(height, round(h * s)), max(width, round(w * s))
-    resample = Image.NEAREST if nearest else Image.BILINEAR
-    im = np.asarray(Image.fromarray(image).resize((nw, nh), resample))
-    top, left = (nh - height) // 2, (nw - width) // 2
-    return np.ascontiguousarray(im[top:top + height, left:left + width])
-
-
-def load_label(path: Path) -> np.ndarray:
-    from PIL import Image
-
-    try:
-        with Image.open(path) as im:
-            a = np.asarray(im)
-    except Exception as e:
-        raise UserError(f"cannot read label image {path}: {e}") from None
-    if a.ndim != 2:
-        raise UserError(f"label image {path} must be single-channel (uint8 class index, 0 = liver, 255 = background)")
-    return a
-
-
-def load_segmentation_set(labelled: Sequence[tuple[Path, Path]], height: int, width: int):
-    """Labelled real images -> (images uint8 (N, 3, h, w), liver masks bool (N, h, w)) at the
-    segmenter's size (images bilinear, labels nearest; cover + centre crop)."""
-    import torch
-
-    from sim2real.data.real import load_rgb
-
-    xs, ys = [], []
-    for ip, lp in labelled:
-        img, lab = load_rgb(ip), load_label(lp)
-        if lab.shape != img.shape[:2]:
-            raise UserError(f"label {lp} is {lab.shape[0]}x{lab.shape[1]} but its image {ip} is "
-                            f"{img.shape[0]}x{img.shape[1]}")
-        xs.append(fit_image(img, height, width))
-        ys.append(fit_image(lab, height, width, nearest=True) == 0)
-    return _to_nchw(xs), torch.from_numpy(np.stack(ys))
-
-
-def _to_nchw(frames: Sequence[np.ndarray]):
-    import torch
-
-    return torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous()
+    anchors: bool = True
+    """Also score the ceiling and the floor (:mod:`sim2real.inference.anchors`) on the same views."""
+    trajectory: dict | None = None
+    """Keyword arguments of :func:`~sim2real.scene.trajectory.make_trajectory` for generated paths
+    (``flow_budget``, ``max_deg_per_frame``, ``look``); None: its defaults."""
 
 
 # --- pooling -------------------------------------------------------------------------------------
-
-
-def pool_orb(entries: Sequence[dict], k: int) -> dict:
-    """Pool ORB-k summaries of several sequences: matches summed over all their pairs."""
-    correct = sum(e["correct"] for e in entries)
-    total = sum(e["total"] for e in entries)
-    pairs = sum(e["pairs"] for e in entries)
-    return {"k": int(k), "accuracy": correct / total if total else None, "mean_correct": correct / pairs if pairs else None,
-            "correct": int(correct), "total": int(total), "pairs": int(pairs),
-            "mean_matches": total / pairs if pairs else None}
 
 
 def _orb_reason(orb: dict[str, dict]) -> str | None:
@@ -214,6 +126,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     from sim2real.inference.report import write_report
     from sim2real.inference.translate import load_run
     from sim2real.inference.video import write_video
+    from sim2real.metrics.consistency import orb_settings_for
     from sim2real.metrics.realism import fid_weights_status
     from sim2real.render.raycast import RayCaster
     from sim2real.render.reference import reference_rendering, to_uint8
@@ -244,7 +157,6 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     trajs = [Trajectory.load(t) for t in trajectories] if trajectories is not None else None
     real_set = find_real(real)
     labelled = real_set.labelled
-    seg_data = load_segmentation_set(labelled, s.seg_height, s.seg_width) if labelled else None
     status = fid_weights_status(fid_weights)
     inception = None
     if status["available"]:
@@ -256,10 +168,19 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     fov = model.cfg.data.fov_x_deg
     seconds: dict[str, float] = {}
 
-    # ---- random views: translate ----
+    # ---- anchors: the ceiling and the floor of every metric ----
+    from sim2real.inference.anchors import Anchors, stand_in_options
+
+    anchor_opts, real_is_stand_in = stand_in_options(real_set.root)
+    anchors = {sc.name: Anchors(sc, seed=s.seed, pool=s.orb_max_k + 1, options=anchor_opts) for sc, _ in scenes} \
+        if s.anchors else {}
+    rows_shown = [r for r in ROWS if s.anchors or r in ("model", "a_ref")]
+
+    # ---- random views: translate, reference rendering, ceiling, floor ----
     t0 = time.perf_counter()
     counts = [s.views // len(scenes) + (1 if k < s.views % len(scenes) else 0) for k in range(len(scenes))]
-    gen, gen_liver, gen_aref = [], [], []
+    views: dict[str, list] = {r: [] for r in rows_shown}
+    gen_liver = []
     casters = {}
     bar = tqdm(total=s.views, desc="views", unit="view", disable=not progress)
     for k, ((sc, d), n) in enumerate(zip(scenes, counts)):
@@ -268,12 +189,17 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
             continue
         cams = sample_poses(caster, n, H, W, fov, seed=s.seed + 1000 * k)
         for chunk in chunked(iter_gbuffers(d, cams, s.workers, s.batch, caster=caster), s.batch):
-            gen.extend(model.translate_gbuffers(sc.name, chunk, s.batch))
+            views["model"].extend(model.translate_gbuffers(sc.name, chunk, s.batch))
             for g in chunk:
+                i = len(gen_liver)
                 gen_liver.append(g.class_index() == 0)
-                gen_aref.append(to_uint8(reference_rendering(g)))
+                views["a_ref"].append(to_uint8(reference_rendering(g)))
+                if s.anchors:
+                    views["ceiling"].append(anchors[sc.name].ceiling(g, 100_000 + i))
+                    views["floor"].append(anchors[sc.name].floor(g, 100_000 + i))
             bar.update(len(chunk))
     bar.close()
+    gen = views["model"]
     seconds["views"] = time.perf_counter() - t0
 
     # ---- real images for FID/KID and the proxy ----
@@ -282,7 +208,8 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     if len(use) > s.max_real:
         use = [use[i] for i in sorted(rng.choice(len(use), s.max_real, replace=False))]
     real_imgs = [fit_image(load_rgb(p), H, W) for p in use]
-    gen_t, real_t = _to_nchw(gen), _to_nchw(real_imgs)
+    real_t = to_nchw(real_imgs)
+    realism: dict[str, dict] = {r: {} for r in rows_shown}
 
     # ---- FID / KID ----
     reasons: dict[str, str | None] = {"fid": None, "dice": None, "of_error": None, "orb": None, "revisit": None}
@@ -295,80 +222,94 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     elif len(gen) < 2 or len(real_imgs) < 2:
         reasons["fid"] = f"FID/KID need at least 2 images per set (got {len(real_imgs)} real, {len(gen)} generated)"
     else:
-        say(f"FID/KID: Inception features of {len(real_imgs)} real and {len(gen)} generated images")
+        say(f"FID/KID: Inception features of {len(real_imgs)} real and {len(gen)} images per row")
         from sim2real.metrics.realism import fid_kid
 
-        with warnings.catch_warnings():  # torchmetrics warns that KID keeps its features: known, bounded here
-            warnings.filterwarnings("ignore", message=".*will save all extracted features in buffer.*")
-            r = fid_kid(gen_t, real_t, inception, kid_subset_size=s.kid_subset_size, kid_subsets=s.kid_subsets,
-                        batch_size=max(s.batch, 16), seed=s.seed)
-        fid = {"fid": r["fid"], "kid_mean": r["kid_mean"], "kid_std": r["kid_std"]}
-        fid_info.update(kid_subset_size=r["kid_subset_size"])
-        bad = [k for k, v in fid.items() if not np.isfinite(v)]
-        if bad:
-            reasons["fid"] = f"{', '.join(bad)} not finite (too few images for a {r['num_features']}-d covariance?)"
-            fid = {k: (v if np.isfinite(v) else None) for k, v in fid.items()}
+        for row in rows_shown:
+            with warnings.catch_warnings():  # torchmetrics warns that KID keeps its features: known, bounded here
+                warnings.filterwarnings("ignore", message=".*will save all extracted features in buffer.*")
+                r = fid_kid(to_nchw(views[row]), real_t, inception, kid_subset_size=s.kid_subset_size,
+                            kid_subsets=s.kid_subsets, batch_size=max(s.batch, 16), seed=s.seed)
+            vals = {"fid": r["fid"], "kid_mean": r["kid_mean"], "kid_std": r["kid_std"]}
+            vals = {k: (v if np.isfinite(v) else None) for k, v in vals.items()}
+            realism[row].update(fid=vals["fid"], kid=vals["kid_mean"])
+            if row == "model":
+                fid = vals
+                fid_info.update(kid_subset_size=r["kid_subset_size"])
+                bad = [k for k, v in vals.items() if v is None]
+                if bad:
+                    reasons["fid"] = f"{', '.join(bad)} not finite (too few images for a {r['num_features']}-d covariance?)"
     del inception
     seconds["fid_kid"] = time.perf_counter() - t0
 
     from sim2real.metrics.realism import proxy_colour_texture_distance
 
-    proxy = proxy_colour_texture_distance(gen_t, real_t)
-    del gen_t, real_t
+    proxy = proxy_colour_texture_distance(to_nchw(gen), real_t)
+    for row in rows_shown:
+        realism[row]["proxy"] = (proxy if row == "model" else proxy_colour_texture_distance(to_nchw(views[row]), real_t)
+                                 )["proxy_colour_texture_distance"]
+    del real_t
 
     # ---- Dice ----
     t0 = time.perf_counter()
-    dice = {"dice": None, "dice_a_ref": None, "dice_real_train": None}
+    dice = {"dice": None, "dice_a_ref": None, "dice_real_train": None, "dice_real_held_out": None, "dice_ceiling": None}
     dice_info = {"n_train": len(labelled), "n_eval": len(gen), "iterations": s.seg_iterations,
-                 "height": s.seg_height, "width": s.seg_width}
+                 "height": s.seg_height, "width": s.seg_width, "rows": {}}
     if not labelled:
         reasons["dice"] = (f"no labelled real images: expected {real_set.label_root}/NAME.png (uint8 class index, "
                            f"0 = liver, 255 = background) for the images {real_set.root}/NAME.*")
     else:
-        say(f"Dice: training the liver U-Net on {len(labelled)} labelled real images for {s.seg_iterations} iterations")
-        from sim2real.metrics.realism import dice as dice_score
-        from sim2real.metrics.segmenter import predict, train_segmenter
+        from sim2real.inference.dice import dice_of, segmenters
 
-        sh, sw = s.seg_height, s.seg_width
-        x_train, y_train = seg_data
-        seg = train_segmenter(x_train, y_train, s.seg_iterations, device=model.device, seed=s.seed, batch_size=s.seg_batch,
-                              progress=progress)
-        gt = np.stack([fit_image(m.astype(np.uint8), sh, sw, nearest=True).astype(bool) for m in gen_liver])
-        pred = predict(seg, _to_nchw([fit_image(f, sh, sw) for f in gen]))
-        pred_ref = predict(seg, _to_nchw([fit_image(f, sh, sw) for f in gen_aref]))
-        dice = {"dice": dice_score(pred, gt), "dice_a_ref": dice_score(pred_ref, gt),
-                "dice_real_train": dice_score(predict(seg, x_train), y_train)}
-        del seg
+        segs, info = segmenters(labelled, s, model.device, progress=progress, say=say)
+        dice_info.update(info)
+        gt = np.stack([fit_image(m.astype(np.uint8), s.seg_height, s.seg_width, nearest=True).astype(bool) for m in gen_liver])
+        for row in rows_shown:
+            dice_info["rows"][row] = d = dice_of(segs, views[row], gt, s)
+            realism[row]["dice"] = d["value"]
+        dice.update(dice=dice_info["rows"]["model"]["value"], dice_a_ref=dice_info["rows"]["a_ref"]["value"],
+                    dice_real_held_out=info["held_out_dice"]["value"],
+                    dice_real_train=float(np.mean([m["train_dice"] for m in info["per_seed"]])),
+                    dice_ceiling=dice_info["rows"].get("ceiling", {}).get("value"))
+        if dice["dice"] is None:
+            reasons["dice"] = dice_info["rows"]["model"]["reason"]
+        del segs
     seconds["dice"] = time.perf_counter() - t0
 
     # ---- temporal consistency per scene ----
     t0 = time.perf_counter()
     per_scene: dict[str, dict] = {}
-    seq_samples: dict[str, tuple[list, list]] = {}
+    seq_samples: dict[str, dict] = {}
     inputs_scenes = []
+    orb_settings = orb_settings_for(W, s.orb_features)
     ks = sorted(set(range(1, s.orb_max_k + 1)) | set(PAPER_KS))
     for k, (sc, d) in enumerate(scenes):
         if trajs is not None:
             traj = trajs[k]
         else:
-            traj = make_trajectory(casters[sc.name], s.frames, H, W, fov, seed=s.seed + k)
-        inputs_scenes.append({"name": sc.name, "scene_dir": str(d),
-                              "trajectory": str(Path(trajectories[k]).resolve()) if trajectories is not None else None,
+            traj = make_trajectory(casters[sc.name], s.frames, H, W, fov, seed=s.seed + k, **(s.trajectory or {}))
+        res, frames = _sequence_metrics(model, sc.name, d, traj.cameras, casters[sc.name], anchors.get(sc.name), s, ks,
+                                        orb_settings, rows_shown, progress)
+        res["trajectory"] = {"file": str(Path(trajectories[k]).resolve()) if trajectories is not None else None,
+                             "motion_budget": (traj.motion or {}).get("budget")}
+        inputs_scenes.append({"name": sc.name, "scene_dir": str(d), "trajectory": res["trajectory"]["file"],
                               "frames": len(traj.cameras)})
-        res, frames, arefs = _sequence_metrics(model, sc.name, d, traj.cameras, casters[sc.name], s, ks, progress)
         per_scene[sc.name] = res
-        seq_samples[sc.name] = (frames, arefs)
-        write_video(frames, out / "videos" / f"{_safe(sc.name)}.mp4", fps=traj.fps)
+        seq_samples[sc.name] = frames
+        for row in rows_shown:
+            if row != "a_ref":
+                write_video(frames[row], out / "videos" / (f"{_safe(sc.name)}.mp4" if row == "model"
+                                                           else f"{_safe(sc.name)}_{row}.mp4"), fps=traj.fps)
     seconds["consistency"] = time.perf_counter() - t0
     casters.clear()
 
     scene_list = list(per_scene.values())
-    orb = {str(k): pool_orb([r["orb_curve"][str(k)] for r in scene_list], k) for k in ks}
-    of_all = [e for r in scene_list for e in r["of_error_per_pair"]]
-    of_error = _mean(of_all)
-    revisit = {"of_error": _mean([e for r in scene_list for e in r["revisit"]["of_error_per_pair"]]),
-               "orb": {str(k): pool_orb([r["revisit"]["orb"][str(k)] for r in scene_list], k) for k in PAPER_KS},
-               "backward_frames": scene_list[0]["revisit"]["backward_frames"]}
+    pooled = {row: pool_rows([r["rows"][row] for r in scene_list], ks) for row in rows_shown}
+    m_row = pooled["model"]
+    orb = m_row["orb_curve"]
+    of_error = m_row["of_error"]
+    revisit = {"of_error": m_row["revisit"]["of_error"], "orb": m_row["revisit"]["orb"],
+               "backward_frames": "reused: the model is time-independent"}
     if of_error is None:
         reasons["of_error"] = "no frame pair with visible ground-truth flow (trajectories of 1 frame, or nothing visible)"
     paper_orb = {str(k): orb[str(k)] for k in PAPER_KS}
@@ -379,6 +320,18 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     if _orb_reason(revisit["orb"]):
         rv.append(_orb_reason(revisit["orb"]))
     reasons["revisit"] = "; ".join(rv) if rv else None
+    table = {row: scalars(pooled[row], realism[row]) for row in rows_shown}
+    pos = positions(table) if s.anchors else {}
+    warnings_ = []
+    if s.anchors and of_error is not None and pooled["ceiling"]["of_error"] is not None \
+            and of_error < pooled["ceiling"]["of_error"]:
+        warnings_.append(f"the model's OF error ({of_error:.3g} px) is below the ceiling's "
+                         f"({pooled['ceiling']['of_error']:.3g} px): Farnebäck returns near-zero flow on smooth frames, "
+                         "so this OF error rewards blur here; see of_error_vs_ceiling "
+                         f"({m_row['of_error_vs_ceiling']:.3g} px, ceiling 0)")
+    if s.anchors and not real_is_stand_in:
+        warnings_.append("the real folder is not the stand-in real domain (no sim2real-realdomain manifest): the ceiling "
+                         "and the floor describe the stand-in, not your domain")
 
     seconds["total"] = time.perf_counter() - t_start
     metrics = {
@@ -386,26 +339,35 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
         "run": {"dir": str(Path(run).resolve()), "checkpoint": str(model.checkpoint.resolve()), "step": model.step,
                 "method": model.cfg.method, "device": str(model.device), "amp_bf16": model.amp,
                 "train_height": H, "train_width": W},
-        "settings": {**dataclasses.asdict(s), "fid_weights": status.get("path")},
+        "settings": {**dataclasses.asdict(s), "fid_weights": status.get("path"), "orb": orb_settings.to_json()},
         "inputs": {"scenes": inputs_scenes,
                    "real": {"dir": str(Path(real).resolve()), "images": len(real_set.images), "images_used": len(use),
-                            "labelled": len(labelled)}},
+                            "labelled": len(labelled), "stand_in": real_is_stand_in}},
         **fid,
         "fid_kid": fid_info,
         "proxy": proxy,
         **dice,
         "dice_info": dice_info,
         "of_error": of_error,
+        "of_epe": m_row["of_epe"],
         "orb": paper_orb,
         "orb_curve": orb,
         "revisit": revisit,
+        "rows": table,
+        "row_curves": {row: pooled[row]["orb_curve"] for row in rows_shown},
+        "position": pos,
+        "anchors": {"ceiling": "the stand-in real domain rendered on the evaluated views with one appearance",
+                    "floor": f"the stand-in with a new appearance every frame (a pool of {s.orb_max_k + 1}, frame t "
+                             f"takes t mod {s.orb_max_k + 1})", "a_ref": "the untranslated reference rendering",
+                    "enabled": s.anchors, "render_options": anchor_opts.to_json()},
+        "warnings": warnings_,
         "per_scene": per_scene,
         "reasons": reasons,
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
     }
     metrics = _json_safe(metrics)
     say("writing the report")
-    samples = _write_samples(out, gen, gen_aref, real_imgs, seq_samples, s)
+    samples = _write_samples(out, views, real_imgs, seq_samples, s)
     write_report(metrics, out, samples)
     atomic_write_json(out / "metrics.json", metrics)  # last: its presence marks a complete evaluation
     return metrics
@@ -431,59 +393,55 @@ def _safe(name: str) -> str:
     return re.sub(r"[^0-9A-Za-z_.-]", "_", name)
 
 
-def _sequence_metrics(model, scene: str, scene_dir: Path, cameras, caster, s: EvalSettings, ks, progress: bool):
-    """Translate one trajectory and compute OF, the ORB curve and the revisit protocol."""
+def _sequence_metrics(model, scene: str, scene_dir: Path, cameras, caster, anchors, s: EvalSettings, ks, orb,
+                      rows_shown, progress: bool):
+    """Translate one trajectory, render its ceiling, floor and a_ref, and score every row."""
     from tqdm import tqdm
 
     from sim2real.inference.frames import chunked, iter_gbuffers
-    from sim2real.metrics.consistency import of_error_sequence, orb_curve, revisit_of, revisit_orb
+    from sim2real.inference.rows import sequence_row
+    from sim2real.render.motion import MotionMeter
     from sim2real.render.reference import reference_rendering, to_uint8
     from sim2real.render.warp import flow as gt_flow
 
     T = len(cameras)
-    frames, points, masks, flows, valids, arefs = [], [], [], [], [], []
+    frames: dict[str, list] = {r: [] for r in rows_shown}
+    points, masks, flows, valids = [], [], [], []
+    meter = MotionMeter()
     prev = None
     bar = tqdm(total=T, desc=f"sequence {scene}", unit="frame", disable=not progress)
     for chunk in chunked(iter_gbuffers(scene_dir, cameras, s.workers, s.batch, caster=caster), s.batch):
         for g, f in zip(chunk, model.translate_gbuffers(scene, chunk, s.batch)):
+            t = len(points)
             if prev is not None:
                 fl, vis = gt_flow(prev, g)
                 flows.append(fl)
                 valids.append(vis)
-            frames.append(f)
+            meter.add(g)
+            frames["model"].append(f)
+            frames["a_ref"].append(to_uint8(reference_rendering(g)))
+            if anchors is not None:
+                frames["ceiling"].append(anchors.ceiling(g, t))
+                frames["floor"].append(anchors.floor(g, t))
             points.append(np.asarray(g.points, dtype=np.float32))
             masks.append(g.mask)
-            arefs.append(to_uint8(reference_rendering(g)) if _is_sample_index(len(frames) - 1, T) else None)
             prev = g
         bar.update(len(chunk))
     bar.close()
-    of = of_error_sequence(frames, flows, valids)
-    curve = orb_curve(frames, points, masks, ks=ks, threshold_mm=s.threshold_mm, n_features=s.orb_features)
-    # Extended sequence 1..T, T..1. Our model is time-independent (TrainedModel.time_independent),
-    # so its backward half equals the forward frames reversed; a method conditioned on earlier
-    # frames would translate the backward half itself and plug it in here.
+    # The model is time-independent (TrainedModel.time_independent): its revisit half is the
+    # forward frames reversed; a method conditioned on earlier frames would translate it itself.
     assert model.time_independent
-    frames_ext, backward = frames + frames[::-1], "reused: the model is time-independent"
-    rev_of = revisit_of(frames_ext, flows, valids)
-    rev_orb = {str(k): revisit_orb(frames_ext, points, masks, k, s.threshold_mm, s.orb_features) for k in PAPER_KS}
-    result = {
-        "frames": T,
-        "of_error": of["of_error"],
-        "of_error_per_pair": of["per_pair"],
-        "orb": {str(k): curve[k] for k in PAPER_KS},
-        "orb_curve": {str(k): curve[k] for k in ks},
-        "revisit": {"of_error": rev_of["of_error"], "of_error_per_pair": rev_of["per_pair"], "orb": rev_orb,
-                    "backward_frames": backward},
-    }
-    return result, frames, arefs
+    rows, ceiling_est = {}, None
+    for row in ("ceiling",) + tuple(r for r in rows_shown if r != "ceiling"):
+        if row in frames:
+            rows[row], est = sequence_row(frames[row], points, masks, flows, valids, ks, s.threshold_mm, orb, ceiling_est)
+            if row == "ceiling":
+                ceiling_est = est
+    return {"frames": T, "motion": meter.summary(), "rows": rows}, frames
 
 
 def _sample_indices(T: int) -> list[int]:
     return sorted({0, T // 3, (2 * T) // 3, T - 1})
-
-
-def _is_sample_index(i: int, T: int) -> bool:
-    return i in _sample_indices(T)
 
 
 def _grid(rows: list[list[np.ndarray]], gap: int = 2) -> np.ndarray:
@@ -494,25 +452,27 @@ def _grid(rows: list[list[np.ndarray]], gap: int = 2) -> np.ndarray:
     return tile([[im if im.shape[:2] == (h, w) else fit_image(im, h, w) for im in row] for row in rows], gap)
 
 
-def _write_samples(out: Path, gen, gen_aref, real_imgs, seq_samples, s: EvalSettings) -> dict:
+def _write_samples(out: Path, views: dict, real_imgs, seq_samples: dict, s: EvalSettings) -> dict:
     """PNG sample grids under ``out/samples``; returns {title: relative path}."""
     from sim2real.fileio import atomic_write_image
 
     samples: dict[str, str] = {}
+    order = [r for r in ("a_ref", "model", "ceiling", "floor") if r in views]
+    gen = views["model"]
     n = min(s.samples, len(gen))
     if n:
         rng = np.random.default_rng(s.seed)
         idx = sorted(rng.choice(len(gen), n, replace=False))
-        atomic_write_image(out / "samples" / "views.png", _grid([[gen_aref[i], gen[i]] for i in idx]))
-        samples["Random views: reference rendering a_ref (left), translated (right)"] = "samples/views.png"
+        atomic_write_image(out / "samples" / "views.png", _grid([[views[r][i] for r in order] for i in idx]))
+        samples[f"Random views, one per row; columns: {', '.join(order)}"] = "samples/views.png"
     if real_imgs:
         atomic_write_image(out / "samples" / "real.png", _grid([real_imgs[: min(4, len(real_imgs))]]))
         samples["Real images (resized and centre-cropped as for FID)"] = "samples/real.png"
-    for name, (frames, arefs) in seq_samples.items():
-        idx = _sample_indices(len(frames))
+    for name, frames in seq_samples.items():
+        idx = _sample_indices(len(frames["model"]))
         rel = f"samples/trajectory_{_safe(name)}.png"
-        atomic_write_image(out / rel, _grid([[arefs[i] for i in idx], [frames[i] for i in idx]]))
-        samples[f"Trajectory of '{name}', frames {', '.join(str(i) for i in idx)}: a_ref (top), translated (bottom)"] = rel
+        atomic_write_image(out / rel, _grid([[frames[r][i] for i in idx] for r in order]))
+        samples[f"Trajectory of '{name}', frames {', '.join(str(i) for i in idx)}; rows: {', '.join(order)}"] = rel
     return samples
 
 

@@ -141,6 +141,10 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
                    f"Real images: {m['inputs']['real']['dir']} ({m['inputs']['real']['images_used']} used of "
                    f"{m['inputs']['real']['images']}; {m['inputs']['real']['labelled']} labelled)."))
 
+    for w in m.get("warnings", []):
+        b.append(("p", f"**Note:** {w}."))
+    if m.get("position"):
+        b += _calibration_blocks(m)
     b.append(("h", 2, "Realism"))
     fk = m["fid_kid"]
     kid = "n/a" if m["kid_mean"] is None else f"{m['kid_mean']:.4f} ± {m['kid_std']:.4f}"
@@ -150,6 +154,10 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
         ["Dice, translated views", _num(m["dice"]), r["dice"] or
          f"liver U-Net trained on {m['dice_info']['n_train']} labelled real images, evaluated on {m['dice_info']['n_eval']} views"],
         ["Dice, reference rendering a_ref (untranslated)", _num(m["dice_a_ref"]), r["dice"] or "the same segmenter on the simulated input"],
+        ["Dice, ceiling (the stand-in on the simulated views)", _num(m.get("dice_ceiling")), r["dice"] or
+         "real look, simulated labels"],
+        ["Dice, held-out real images", _num(m.get("dice_real_held_out")),
+         f"{m['dice_info'].get('n_held_out', 0)} images not trained on"],
         ["Dice, its own real training images (fit check)", _num(m["dice_real_train"]), r["dice"] or "not held out"],
         ["proxy colour+texture distance (**not FID**)", _num(m["proxy"]["proxy_colour_texture_distance"]),
          f"colour {m['proxy']['proxy_colour_distance']:.4f} + texture {m['proxy']['proxy_texture_distance']:.4f}; "
@@ -174,22 +182,21 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
                    "model it equals the forward metric."))
     rows = []
     for name, s in m["per_scene"].items():
-        rows.append([name, str(s["frames"]), _num(s["of_error"])] + [_orb_cell(s["orb"][k]) for k in s["orb"]])
+        mr = s["rows"]["model"]
+        rows.append([name, str(s["frames"]), _num(mr["of_error"])] + [_orb_cell(mr["orb_curve"][k]) for k in m["orb"]])
     b.append(("table", ["scene", "frames", "OF error"] + [f"ORB-{k}" for k in m["orb"]], rows))
 
     ks = [int(k) for k in m["orb_curve"]]
-    acc = {"all scenes": [(k, m["orb_curve"][str(k)]["accuracy"]) for k in ks]}
-    cor = {"all scenes": [(k, m["orb_curve"][str(k)]["mean_correct"]) for k in ks]}
-    if len(m["per_scene"]) > 1:
-        for name, s in m["per_scene"].items():
-            acc[name] = [(int(k), e["accuracy"]) for k, e in s["orb_curve"].items()]
-            cor[name] = [(int(k), e["mean_correct"]) for k, e in s["orb_curve"].items()]
+    curves = m.get("row_curves") or {"model": m["orb_curve"]}
+    acc = {row: [(k, c[str(k)]["accuracy"]) for k in ks] for row, c in curves.items() if row != "a_ref"}
+    cor = {row: [(k, c[str(k)]["mean_correct"]) for k in ks] for row, c in curves.items() if row != "a_ref"}
     b.append(("h", 3, "ORB-k curve"))
     b.append(("plot", "plots/orb_accuracy.svg", svg_line_plot(acc, "ORB-k accuracy", "k (frames apart)", "accuracy",
                                                                y_min=0.0, y_max=1.0, y_percent=True), "ORB-k accuracy"))
     b.append(("plot", "plots/orb_correct.svg", svg_line_plot(cor, "Correct ORB matches per pair", "k (frames apart)",
                                                               "correct matches / pair", y_min=0.0), "correct matches per pair"))
-    of = {name: [(t, e) for t, e in enumerate(s["of_error_per_pair"])] for name, s in m["per_scene"].items()}
+    first = next(iter(m["per_scene"].values()))
+    of = {row: [(t, e) for t, e in enumerate(r["per_pair"]["of_error"])] for row, r in first["rows"].items()}
     b.append(("plot", "plots/of_error.svg", svg_line_plot(of, "OF error per frame pair", "frame t (pair t, t+1)",
                                                            "OF error (px)", y_min=0.0), "OF error per frame pair"))
 
@@ -199,6 +206,60 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
             b.append(("img", caption, rel))
     b.append(("h", 2, "Settings"))
     b.append(("pre", json.dumps({"settings": m["settings"], "seconds": m["seconds"]}, indent=2)))
+    return b
+
+
+_CAL_METRICS = [
+    ("orb_1_accuracy", "ORB-1 accuracy", True), ("orb_1_correct", "ORB-1 correct / pair", False),
+    ("orb_5_accuracy", "ORB-5 accuracy", True), ("orb_5_correct", "ORB-5 correct / pair", False),
+    ("orb_10_accuracy", "ORB-10 accuracy", True), ("orb_10_correct", "ORB-10 correct / pair", False),
+    ("of_error", "OF error (px, paper; vs ground truth)", False), ("of_epe", "OF end-point error (px, vs ground truth)", False),
+    ("of_error_vs_ceiling", "OF error vs the ceiling's flow (px)", False),
+    ("of_epe_vs_ceiling", "OF end-point error vs the ceiling's flow (px)", False),
+    ("revisit_orb_1_accuracy", "revisit ORB-1 accuracy", True), ("revisit_orb_10_accuracy", "revisit ORB-10 accuracy", True),
+    ("revisit_of_error", "revisit OF error (px)", False),
+    ("dice", "Dice (mean over segmenter seeds)", False), ("proxy", "proxy colour+texture distance (not FID)", False),
+    ("fid", "FID", False), ("kid", "KID", False),
+]
+
+
+def _cal_value(v, pct: bool) -> str:
+    if v is None:
+        return "n/a"
+    return f"{100 * v:.1f}%" if pct else f"{v:.4g}"
+
+
+def _calibration_blocks(m: dict) -> list[tuple]:
+    rows_ = m["rows"]
+    pos = m["position"]
+    b: list[tuple] = [("h", 2, "Between floor and ceiling")]
+    b.append(("p", "Every metric is also computed on three reference videos of the very same views and path: the "
+                   "**ceiling** (the stand-in real domain rendered with one appearance: consistent and detailed by "
+                   "construction, the best these metrics can say of a video here), the **floor** (the same with a new "
+                   "appearance every frame: it flickers) and **a_ref**, the untranslated input. Position = (model − "
+                   "floor) / (ceiling − floor): 0 is the floor, 1 the ceiling; n/a where the ceiling and the floor differ "
+                   "by less than 5 %, i.e. the metric cannot tell them apart (the per-frame realism metrics do not see "
+                   "flicker: read their position from a_ref)."))
+    table = []
+    for key, label, pct in _CAL_METRICS:
+        if key not in rows_["model"] or all(rows_[r].get(key) is None for r in rows_):
+            continue
+        p = pos.get(key, {})
+        table.append([label] + [_cal_value(rows_[r].get(key), pct) for r in ("model", "ceiling", "floor", "a_ref")]
+                     + [_num(p.get("position"), 3), _num(p.get("position_a_ref"), 3)])
+    b.append(("table", ["metric", "model", "ceiling", "floor", "a_ref", "position (floor 0, ceiling 1)",
+                        "position (a_ref 0, ceiling 1)"], table))
+    mot = []
+    for name, s in m["per_scene"].items():
+        mo = s["motion"]
+        ov = mo["overlap"]
+        mot.append([name, str(s["frames"]), _num(mo["flow_px_per_frame_median"], 3),
+                    f"{100 * mo['flow_frac_per_frame_median']:.2f}%" if mo["flow_frac_per_frame_median"] is not None else "n/a",
+                    _num(mo["deg_per_frame_max"], 3)] + [_cal_value(ov.get(k), True) for k in ("1", "5", "10")])
+    b.append(("p", "Motion of the test path, measured on it (ground-truth flow, rotation, and the share of a frame "
+                   "still in view k frames later):"))
+    b.append(("table", ["scene", "frames", "median flow / frame (px)", "of the width", "max rotation / frame (°)",
+                        "overlap 1", "overlap 5", "overlap 10"], mot))
     return b
 
 

@@ -24,6 +24,7 @@ Keypoints
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
 from typing import Iterable, Sequence
 
 import cv2
@@ -34,6 +35,48 @@ FARNEBACK_PARAMS = dict(pyr_scale=0.5, levels=3, winsize=15, iterations=3, poly_
 
 #: ORB-k offsets reported by the paper (1 and 5/10 frames = 1/2 s apart).
 PAPER_ORB_KS = (1, 5, 10)
+
+
+@dataclass(frozen=True)
+class OrbSettings:
+    """Parameters of ``cv2.ORB_create``; the defaults are OpenCV's (the paper's ORB at 256x512)."""
+
+    n_features: int = 1000
+    patch_size: int = 31
+    edge_threshold: int = 31
+    n_levels: int = 8
+    scale_factor: float = 1.2
+    fast_threshold: int = 20
+
+    def create(self):
+        return cv2.ORB_create(nfeatures=int(self.n_features), scaleFactor=float(self.scale_factor),
+                              nlevels=int(self.n_levels), edgeThreshold=int(self.edge_threshold),
+                              patchSize=int(self.patch_size), fastThreshold=int(self.fast_threshold))
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+PAPER_ORB_WIDTH = 512
+"""Image width at which :func:`orb_settings_for` gives the paper's (OpenCV's default) ORB."""
+
+
+def orb_settings_for(width: int, n_features: int = 1000) -> OrbSettings:
+    """ORB settings for frames ``width`` pixels wide.
+
+    At :data:`PAPER_ORB_WIDTH` and above: OpenCV's defaults with ``n_features`` (the paper's ORB,
+    so figures there compare with its Table 1). Narrower frames shrink the 31-px patch and border
+    to ``round(31 (width / 512)^0.2)`` px (27 at 256 px): the default patch leaves little image at
+    128x256, and a patch scaled with the width (15 px) finds more matches but loses accuracy at
+    ORB-10. Measured on the ceiling of the default test path at 128x256 (docs/evaluation.md,
+    "ORB at the training size"): patch 31 / 27 / 23 / 19 gave ORB-10 73 / 66 / 63 / 62 %
+    accuracy with 24 / 23 / 25 / 30 correct matches per pair on demo scene 0, and
+    94 / 92 / 91 / 88 % with 17 / 24 / 33 / 41 on scene 1.
+    """
+    if width >= PAPER_ORB_WIDTH:
+        return OrbSettings(n_features=int(n_features))
+    patch = max(11, int(round(31 * (width / PAPER_ORB_WIDTH) ** 0.2)))
+    return OrbSettings(n_features=int(n_features), patch_size=patch, edge_threshold=patch)
 
 
 # --------------------------------------------------------------------------- input handling
@@ -113,6 +156,32 @@ def of_error(flow_gt, frame_a, frame_b, valid=None) -> float | None:
     return float(np.abs(gt[v] - est[v]).mean())
 
 
+def flow_errors(flow_ref, flow_est, valid=None) -> tuple[float, float] | tuple[None, None]:
+    r"""Mean absolute component difference and mean end-point error between two flows.
+
+    With :math:`F` the reference flow (ground truth, or the ceiling video's Farnebäck flow),
+    :math:`\hat F` the estimate and :math:`V` the valid pixels (default: where both are finite),
+
+    .. math::
+        \mathrm{OF} = \frac{1}{2|V|} \sum_{p \in V} \bigl(|F_u - \hat F_u| + |F_v - \hat F_v|\bigr), \qquad
+        \mathrm{EPE} = \frac{1}{|V|} \sum_{p \in V} \lVert F(p) - \hat F(p) \rVert_2
+
+    (the first is the paper's OF error when :math:`F` is the ground truth). ``(None, None)``
+    when no pixel is valid.
+    """
+    a = _to_numpy(flow_ref).astype(np.float64)
+    b = _to_numpy(flow_est).astype(np.float64)
+    if a.shape != b.shape or a.ndim != 3 or a.shape[-1] != 2:
+        raise ValueError(f"flows must both be (H, W, 2), got {a.shape} and {b.shape}")
+    v = np.isfinite(a).all(-1) & np.isfinite(b).all(-1)
+    if valid is not None:
+        v &= _to_numpy(valid).astype(bool)
+    if not v.any():
+        return None, None
+    d = a[v] - b[v]
+    return float(np.abs(d).mean()), float(np.linalg.norm(d, axis=-1).mean())
+
+
 def of_error_sequence(frames: Sequence, flows_gt: Sequence, valids: Sequence | None = None) -> dict:
     """:func:`of_error` over consecutive pairs (t, t+1); ``flows_gt[t]`` is the flow t -> t+1.
 
@@ -136,10 +205,10 @@ class _OrbFeatures:
 
     __slots__ = ("pts", "des", "shape")
 
-    def __init__(self, frame, n_features: int) -> None:
+    def __init__(self, frame, n_features: int | OrbSettings) -> None:
         grey = to_grey_u8(frame)
         self.shape = grey.shape
-        orb = cv2.ORB_create(nfeatures=int(n_features))
+        orb = (n_features if isinstance(n_features, OrbSettings) else OrbSettings(n_features=int(n_features))).create()
         kps, des = orb.detectAndCompute(grey, None)
         self.pts = np.array([kp.pt for kp in kps], dtype=np.float64).reshape(-1, 2)
         self.des = des if des is not None and len(des) else None
@@ -157,11 +226,12 @@ def _match(fa: _OrbFeatures, fb: _OrbFeatures) -> tuple[np.ndarray, np.ndarray]:
     return fa.pts[ia], fb.pts[ib]
 
 
-def orb_matches(frame_a, frame_b, n_features: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+def orb_matches(frame_a, frame_b, n_features: "int | OrbSettings" = 1000) -> tuple[np.ndarray, np.ndarray]:
     """Cross-checked ORB matches between two frames.
 
-    ORB (``cv2.ORB_create(nfeatures=n_features)``, other parameters OpenCV's defaults) on the
-    8-bit grey frames, brute-force Hamming matching with cross-check (a match is kept only if
+    ORB (``cv2.ORB_create(nfeatures=n_features)``, other parameters OpenCV's defaults; or the
+    parameters of an :class:`OrbSettings` passed as ``n_features``, as in every ORB function
+    here) on the 8-bit grey frames, brute-force Hamming matching with cross-check (a match is kept only if
     each descriptor is the other's nearest neighbour). Returns ``(pts_a, pts_b)``, each (M, 2)
     float64 ``(x, y)`` in OpenCV keypoint coordinates (pixel centres at integers). A frame
     without descriptors (e.g. a smooth image) gives M = 0.
@@ -200,7 +270,7 @@ def _summary(correct: int, total: int) -> dict:
 
 
 def orb_accuracy(frame_a, frame_b, points_a, points_b, valid_a, valid_b, threshold_mm: float = 1.0,
-                 n_features: int = 1000) -> dict:
+                 n_features: "int | OrbSettings" = 1000) -> dict:
     """ORB match accuracy of one frame pair: ``{"correct", "total", "accuracy"}``.
 
     ``total`` = number of cross-checked ORB matches (:func:`orb_matches`), ``correct`` = those
@@ -230,7 +300,7 @@ def _seq_len_check(frames, points, valids) -> int:
 
 
 def orb_curve(frames: Sequence, points: Sequence, valids: Sequence, ks: Iterable[int] = range(1, 21),
-              threshold_mm: float = 1.0, n_features: int = 1000) -> dict[int, dict]:
+              threshold_mm: float = 1.0, n_features: "int | OrbSettings" = 1000) -> dict[int, dict]:
     """ORB-k for each k in ``ks`` over all pairs (t, t+k), t = 0..T-1-k.
 
     ``frames``: T frames; ``points``: T arrays (H, W, 3) mm; ``valids``: T masks (H, W).
@@ -292,7 +362,7 @@ def _per_view(seq, T: int, name: str):
 
 
 def revisit_orb(frames_ext: Sequence, points: Sequence, valids: Sequence, k: int, threshold_mm: float = 1.0,
-                n_features: int = 1000) -> dict:
+                n_features: "int | OrbSettings" = 1000) -> dict:
     """ORB-k under the revisit protocol ("OF-UNIT (revisit)").
 
     ``frames_ext``: the 2T translated frames of the extended sequence (forward then backward).

@@ -10,8 +10,12 @@ exact variant is not given; this one is a plain U-Net:
 - Inputs of any size: padded (replicate) to a multiple of ``2**(depth-1)`` and cropped back.
 
 Training (:func:`train_segmenter`): Adam, loss = binary cross-entropy + soft Dice
-(1 - 2 sum(p g) / (sum p + sum g + 1)), random horizontal/vertical flips, mini-batches drawn with
-a seeded generator, so a run is reproducible on a given device.
+(1 - 2 sum(p g) / (sum p + sum g + 1)), random horizontal/vertical flips and (``crops``) random
+resized crops of 60-100 % of each side, mini-batches drawn with a seeded generator, so a run is
+reproducible on a given device. With a validation set it stops once the validation Dice has not
+improved by 0.005 for ``patience`` checks and returns the best checked weights (geometric
+augmentation only: a colour jitter was measured to make the untranslated a_ref look as good as
+real frames to the segmenter, README).
 Images are (N, 3, H, W) float RGB in [0, 1]; labels (N, H, W) bool (True = liver).
 """
 
@@ -78,7 +82,8 @@ def _check_images(images: Tensor) -> Tensor:
 
 def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, device: str | torch.device | None = None,
                     seed: int = 0, *, batch_size: int = 8, lr: float = 1e-3, base_channels: int = 16,
-                    depth: int = 3, flips: bool = True, progress: bool = False) -> LiverUNet:
+                    depth: int = 3, flips: bool = True, crops: bool = False, val: tuple[Tensor, Tensor] | None = None,
+                    check_every: int = 100, patience: int = 3, progress: bool = False, history: list | None = None) -> LiverUNet:
     """Train a :class:`LiverUNet` on (images (N,3,H,W) in [0,1], labels (N,H,W) bool).
 
     ``iterations`` Adam steps on random mini-batches of ``batch_size`` (with replacement across
@@ -105,10 +110,27 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
     x_all = images.to(device)
     y_all = labels.to(device=device, dtype=torch.float32)[:, None]
     n = x_all.shape[0]
+    best, best_state, since = -1.0, None, 0
+    if val is not None:
+        from sim2real.metrics.realism import dice as dice_score
     model.train()
-    for _ in tqdm(range(iterations), desc="liver U-Net", unit="it", disable=not progress):
+    for it in tqdm(range(iterations), desc="liver U-Net", unit="it", disable=not progress):
+        if val is not None and it > 0 and it % check_every == 0:
+            d = dice_score(predict(model, val[0]), val[1])
+            model.train()
+            if history is not None:
+                history.append((it, d))
+            if d > best + 0.005:
+                best, since = d, 0
+                best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+            else:
+                since += 1
+                if since >= patience:
+                    break
         idx = torch.randint(0, n, (min(batch_size, n),), generator=gen).to(device)
         x, y = x_all[idx], y_all[idx]
+        if crops:
+            x, y = _random_resized_crop(x, y, gen)
         if flips:
             if torch.rand((), generator=gen) < 0.5:
                 x, y = x.flip(-1), y.flip(-1)
@@ -121,7 +143,26 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
+    if best_state is not None:
+        d = dice_score(predict(model, val[0]), val[1])
+        if history is not None:
+            history.append((it + 1, d))
+        if d <= best:
+            model.load_state_dict(best_state)
     return model.eval()
+
+
+def _random_resized_crop(x: Tensor, y: Tensor, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+    """One random crop of 60-100 % of each side for the whole batch, resized back (images
+    bilinear, labels nearest)."""
+    h, w = x.shape[-2:]
+    s = 0.6 + 0.4 * float(torch.rand((), generator=gen))
+    ch, cw = max(2, round(h * s)), max(2, round(w * s))
+    top = int(torch.randint(0, h - ch + 1, (), generator=gen))
+    left = int(torch.randint(0, w - cw + 1, (), generator=gen))
+    xc = F.interpolate(x[..., top:top + ch, left:left + cw], size=(h, w), mode="bilinear", align_corners=False)
+    yc = F.interpolate(y[..., top:top + ch, left:left + cw], size=(h, w), mode="nearest")
+    return xc, yc
 
 
 @torch.no_grad()

@@ -73,6 +73,9 @@ class Trajectory:
 
     cameras: list[Camera]
     fps: float = 5.0
+    motion: dict | None = None
+    """Measured motion (:func:`measure_motion`) and the budget it was made with; saved in the
+    JSON side file ``PATH.json`` beside the pose file."""
 
     def save(self, path: str | os.PathLike) -> None:
         c0 = self.cameras[0]
@@ -90,6 +93,11 @@ class Trajectory:
             row = [i / self.fps, *c2w[:3, 3], *q]
             lines.append(" ".join(f"{x:.9f}" for x in row))
         atomic_write_text(path, "\n".join(lines) + "\n")
+        if self.motion is not None:
+            from sim2real.fileio import atomic_write_json
+
+            atomic_write_json(side_file(path), {"format": "sim2real-trajectory-motion/1", "frames": len(self.cameras),
+                                                "fps": self.fps, "motion": self.motion})
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Trajectory":
@@ -135,18 +143,65 @@ class Trajectory:
             c2w[:3, 3] = r[1:4]
             cams.append(Camera(K, invert_rigid(c2w), height, width))
         fps = header.get("fps", [5.0])[0]
-        return cls(cams, fps=fps if fps > 0 else 5.0)
+        motion = None
+        side = side_file(path)
+        if side.is_file():
+            import json
+
+            try:
+                data = json.loads(side.read_text())
+                motion = data["motion"] if data.get("frames") == len(cams) else None
+            except (OSError, ValueError, KeyError, TypeError):
+                motion = None  # a side file that does not describe these poses is not used
+        return cls(cams, fps=fps if fps > 0 else 5.0, motion=motion)
+
+
+def side_file(path: str | os.PathLike) -> Path:
+    """The JSON side file of a trajectory file: ``traj.txt`` -> ``traj.txt.json``."""
+    p = Path(path)
+    return p.with_name(p.name + ".json")
+
+
+DEFAULT_FLOW_BUDGET = 0.003
+"""Median ground-truth flow per frame, as a fraction of the image width, of :func:`make_trajectory`'s
+default path: about 1.5 px per frame at 512 px, so that a perfect video keeps ORB-10 accuracy high
+(the paper's slow pans; measured in tests/test_calibration.py and docs/evaluation.md)."""
+DEFAULT_MAX_DEG_PER_FRAME = 0.4
+"""Bound on the camera's rotation between consecutive frames (degrees)."""
+LOOKS = ("smooth", "swing")
+_MEASURE_WIDTH = 128  # the path is timed on G-buffers of this width (flow fractions do not depend on it)
 
 
 def make_trajectory(
     caster, frames: int = 100, height: int = 256, width: int = 512, fov_x_deg: float = 75.0,
     seed: int = 0, keys: int = 5, fps: float = 5.0, max_tries: int = 50,
+    flow_budget: float | None = DEFAULT_FLOW_BUDGET, max_deg_per_frame: float | None = DEFAULT_MAX_DEG_PER_FRAME,
+    look: str = "smooth",
 ) -> Trajectory:
-    """A smooth camera path that pans across the liver with varying distance."""
+    """A smooth camera path that pans across the liver with varying distance.
+
+    The eye passes a cubic spline through ``keys`` random points of the camera region, sorted
+    along its longest axis. ``look="smooth"`` (default) aims it at a look-at point that moves
+    smoothly and monotonically over the liver (a quadratic fit through the liver points below
+    the eye keys); ``look="swing"`` aims at a new random liver point at every key (the paths
+    before the motion budget: 16 px/frame at 512 px, a stress test).
+
+    ``flow_budget`` (fraction of the width) and ``max_deg_per_frame`` then time the path: it is
+    re-parametrised so that every frame step moves the image by the same amount, measured by ray
+    casting the path (:mod:`sim2real.render.motion`), at most ``flow_budget`` of the width in
+    median flow and ``max_deg_per_frame`` in rotation. A path longer than the budget allows is cut
+    to its middle part; a shorter one runs slower. ``None`` for both: the spline is sampled
+    uniformly (the old behaviour). The result carries its measured motion (``Trajectory.motion``).
+    """
     from scipy.interpolate import CubicSpline
 
     if frames < 2:
         raise UserError(f"a trajectory needs at least 2 frames, got {frames}")
+    if look not in LOOKS:
+        raise UserError(f"look must be one of {', '.join(LOOKS)}, got '{look}'")
+    for name, v in (("flow budget", flow_budget), ("max degrees per frame", max_deg_per_frame)):
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise UserError(f"the {name} must be positive, got {v}")
     scene = caster.scene
     K = intrinsics_from_fov(width, height, fov_x_deg)
     rng = np.random.default_rng(seed)
@@ -159,18 +214,95 @@ def make_trajectory(
         looks = []
         for eye in eyes:
             cand = targets[rng.integers(0, len(targets), size=32)]
+            if look == "smooth":  # the candidates nearest to the point below the eye first
+                below = np.linalg.norm(np.cross(cand - eye, scene.up), axis=1)
+                cand = cand[np.argsort(below)]
             ok = caster.visible(eye, cand, liver)
             looks.append(cand[np.nonzero(ok)[0][0]] if ok.any() else None)
         if any(l is None for l in looks) or not caster.free_space(eyes).all():
             continue
         s = np.linspace(0.0, 1.0, keys)
-        t = np.linspace(0.0, 1.0, frames)
-        path_eye = scene.camera_region.clamp(CubicSpline(s, eyes, bc_type="natural")(t))
-        path_look = CubicSpline(s, np.array(looks), bc_type="natural")(t)
+        eye_fn = CubicSpline(s, eyes, bc_type="natural")
+        if look == "smooth":
+            coef = np.polynomial.polynomial.polyfit(s, np.array(looks), 2)
+            look_fn = lambda u, c=coef: np.polynomial.polynomial.polyval(np.asarray(u), c).T  # noqa: E731
+        else:
+            look_fn = CubicSpline(s, np.array(looks), bc_type="natural")
+        if flow_budget is None and max_deg_per_frame is None:
+            u = np.linspace(0.0, 1.0, frames)
+        else:
+            u = _timed_parameters(caster, eye_fn, look_fn, frames, K, height, width, flow_budget, max_deg_per_frame)
+        path_eye = scene.camera_region.clamp(eye_fn(u))
+        path_look = look_fn(u)
         if not caster.free_space(path_eye).all():
             continue
         if np.min(np.linalg.norm(path_look - path_eye, axis=1)) < 15.0:
             continue
         cams = [Camera(K, look_at(e, l, scene.up), height, width) for e, l in zip(path_eye, path_look)]
-        return Trajectory(cams, fps=fps)
+        traj = Trajectory(cams, fps=fps)
+        traj.motion = measure_motion(caster, cams)
+        traj.motion.update(budget={"flow_frac_per_frame": flow_budget, "max_deg_per_frame": max_deg_per_frame,
+                                   "look": look, "seed": int(seed)})
+        return traj
     raise UserError(f"could not find a collision-free trajectory in scene '{scene.name}'; check its camera region")
+
+
+def _measure_cameras(cams: list[Camera]) -> list[Camera]:
+    """The same cameras at a width of about :data:`_MEASURE_WIDTH` px (flow fractions are unchanged)."""
+    c0 = cams[0]
+    s = min(1.0, _MEASURE_WIDTH / c0.width)
+    h, w = max(8, round(c0.height * s)), max(8, round(c0.width * s))
+    K = c0.K.copy()
+    K[0] *= w / c0.width
+    K[1] *= h / c0.height
+    return [Camera(K, c.world_to_camera, h, w) for c in cams]
+
+
+def measure_motion(caster, cameras: list[Camera]) -> dict:
+    """:func:`sim2real.render.motion.measure` of a path, ray cast at about 128 px width."""
+    from sim2real.render.motion import measure
+
+    m = measure(caster.render(c) for c in _measure_cameras(cameras))
+    m["width"] = cameras[0].width
+    m["flow_px_per_frame_median"] = m["flow_frac_per_frame_median"] * cameras[0].width
+    m["flow_px_per_frame"] = [round(x * cameras[0].width / _measure_width(cameras), 3) for x in m["flow_px_per_frame"]]
+    m["measured_at_width"] = _measure_width(cameras)
+    return m
+
+
+def _measure_width(cameras: list[Camera]) -> int:
+    return _measure_cameras(cameras[:1])[0].width
+
+
+def _timed_parameters(caster, eye_fn, look_fn, frames: int, K, height: int, width: int,
+                      flow_budget: float | None, max_deg: float | None, oversample: int = 4) -> np.ndarray:
+    """Spline parameters of ``frames`` frames whose steps all move the same amount, at most
+    one budget unit (the larger of flow / flow_budget and rotation / max_deg)."""
+    from sim2real.render.motion import pair_flow_px, rotation_deg
+
+    n = max(oversample * frames, 64)
+    u = np.linspace(0.0, 1.0, n)
+    eye = caster.scene.camera_region.clamp(eye_fn(u))
+    lk = look_fn(u)
+    cams = _measure_cameras([Camera(K, look_at(e, l, caster.scene.up), height, width) for e, l in zip(eye, lk)])
+    gbs = [caster.render(c) for c in cams]
+    step = np.zeros(n - 1)
+    for i in range(n - 1):
+        cost = 0.0
+        if flow_budget is not None:
+            cost = max(cost, pair_flow_px(gbs[i], gbs[i + 1])[0] / cams[0].width / flow_budget)
+        if max_deg is not None:
+            cost = max(cost, rotation_deg(cams[i].world_to_camera, cams[i + 1].world_to_camera) / max_deg)
+        step[i] = cost
+    cum = np.concatenate([[0.0], np.cumsum(step)])
+    need = float(frames - 1)
+    total = cum[-1]
+    if total <= need:  # the whole path, slower than the budget
+        targets = np.linspace(0.0, total, frames)
+    else:  # the middle part of the path at the budget
+        a = 0.5 * (total - need)
+        targets = np.linspace(a, a + need, frames)
+    # Cumulative motion is non-decreasing; interpolate the inverse (ties: np.interp takes the first).
+    return np.interp(targets, cum, u)
+
+

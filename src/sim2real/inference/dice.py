@@ -1,0 +1,135 @@
+"""A Dice that holds still: liver segmenters trained to convergence on a held-out split, over
+several seeds, cached per real folder.
+
+Protocol (every number is an :class:`~sim2real.inference.evaluate.EvalSettings` field):
+
+* The labelled real images are split once (seeded) into a training part and a held-out part
+  (``seg_holdout``, at least one image). Each of ``seg_seeds`` segmenters
+  (:func:`sim2real.metrics.segmenter.train_segmenter`, flips + random resized crops) trains for
+  at most ``seg_iterations`` steps and stops when its held-out Dice stops improving.
+* A set of frames is scored by every segmenter. Its Dice is the mean over the seeds, reported
+  with the per-seed values and their spread (max - min). A spread above ``seg_max_spread``
+  (0.05) makes the figure **unstable**: the value is ``None`` and the reason gives the range.
+* Trained segmenters are cached under ``$SIM2REAL_CACHE`` (default ``~/.cache/sim2real``) in
+  ``segmenters/KEY/``, KEY = SHA-256 of the labelled files' contents and every setting that
+  changes training, so that evaluating many methods on one real folder trains them once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+CACHE_FORMAT = "sim2real-segmenter-cache/1"
+
+
+def cache_root() -> Path:
+    return Path(os.environ.get("SIM2REAL_CACHE") or Path.home() / ".cache" / "sim2real")
+
+
+def cache_key(labelled: Sequence[tuple[Path, Path]], spec: dict) -> str:
+    """SHA-256 over the labelled images' and labels' bytes (in name order) and ``spec``."""
+    h = hashlib.sha256(CACHE_FORMAT.encode())
+    h.update(json.dumps(spec, sort_keys=True).encode())
+    for ip, lp in sorted(labelled, key=lambda p: (str(p[0].name), str(p[1].name))):
+        for p in (ip, lp):
+            h.update(p.name.encode())
+            h.update(hashlib.sha256(p.read_bytes()).digest())
+    return h.hexdigest()[:32]
+
+
+def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(train, held-out) indices of ``n`` items; at least one held out and one for training
+    when n >= 2 (n = 1: the one image is both, and the held-out Dice is a fit check)."""
+    perm = np.random.default_rng(seed).permutation(n)
+    if n < 2:
+        return perm, perm
+    k = min(n - 1, max(1, int(round(holdout * n))))
+    return np.sort(perm[k:]), np.sort(perm[:k])
+
+
+def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool = True, say=print) -> tuple[list, dict]:
+    """Train (or load from the cache) ``s.seg_seeds`` segmenters; returns (models, info)."""
+    import torch
+
+    from sim2real.fileio import atomic_write_bytes, atomic_write_json
+    from sim2real.inference.realset import load_segmentation_set
+    from sim2real.metrics.realism import dice as dice_score
+    from sim2real.metrics.segmenter import LiverUNet, predict, train_segmenter
+
+    spec = {"height": s.seg_height, "width": s.seg_width, "iterations": s.seg_iterations, "batch": s.seg_batch,
+            "holdout": s.seg_holdout, "split_seed": s.seed, "crops": True, "flips": True, "base_channels": 16,
+            "depth": 3, "check_every": s.seg_check_every}
+    x, y = load_segmentation_set(labelled, s.seg_height, s.seg_width)
+    tr, ho = split(len(labelled), s.seg_holdout, s.seed)
+    key = cache_key(labelled, spec)
+    folder = cache_root() / "segmenters" / key
+    models, per_seed = [], []
+    for k in range(s.seg_seeds):
+        seed = s.seed + k
+        f = folder / f"seed_{seed}.pt"
+        model = None
+        if f.is_file():
+            try:
+                blob = torch.load(f, map_location="cpu", weights_only=True)
+                model = LiverUNet(16, 3)
+                model.load_state_dict(blob["state_dict"])
+                model = model.to(device).eval()
+                meta = json.loads(blob["meta"])
+            except Exception:  # a damaged cache entry is retrained, not trusted
+                model = None
+        if model is None:
+            say(f"Dice: training liver U-Net seed {seed} on {len(tr)} labelled real images "
+                f"(held out: {len(ho)}; at most {s.seg_iterations} steps)")
+            hist: list = []
+            model = train_segmenter(x[tr], y[tr], s.seg_iterations, device=device, seed=seed, batch_size=s.seg_batch,
+                                    crops=True, val=(x[ho], y[ho]), check_every=s.seg_check_every, history=hist,
+                                    progress=progress)
+            meta = {"seed": seed, "history": hist, "steps": hist[-1][0] if hist else s.seg_iterations}
+            import io
+
+            buf = io.BytesIO()
+            torch.save({"state_dict": {k2: v.cpu() for k2, v in model.state_dict().items()}, "meta": json.dumps(meta)}, buf)
+            atomic_write_bytes(f, buf.getvalue())
+            atomic_write_json(folder / "spec.json", {"format": CACHE_FORMAT, "spec": spec,
+                                                     "images": [str(p[0]) for p in labelled]})
+            meta["cached"] = False
+        else:
+            meta["cached"] = True
+        meta["held_out_dice"] = dice_score(predict(model, x[ho]), y[ho])
+        meta["train_dice"] = dice_score(predict(model, x[tr]), y[tr])
+        models.append(model)
+        per_seed.append(meta)
+    info = {"n_train": int(len(tr)), "n_held_out": int(len(ho)) if len(labelled) > 1 else 0, "seeds": s.seg_seeds,
+            "cache": str(folder), "spec": spec, "per_seed": per_seed,
+            "held_out_dice": summarise([m["held_out_dice"] for m in per_seed], s.seg_max_spread)}
+    return models, info
+
+
+def summarise(values: Sequence[float], max_spread: float) -> dict:
+    """{"value": mean or None when unstable, "per_seed", "spread", "stable", "reason"}."""
+    v = [float(a) for a in values]
+    spread = max(v) - min(v) if v else None
+    stable = spread is not None and spread <= max_spread
+    return {"value": float(np.mean(v)) if stable else None, "mean": float(np.mean(v)) if v else None,
+            "per_seed": v, "spread": spread, "stable": stable,
+            "reason": None if stable else (f"unstable over segmenter seeds: {min(v):.3f}-{max(v):.3f} "
+                                           f"(spread {spread:.3f} > {max_spread:g})" if v else "no segmenter")}
+
+
+def dice_of(models: list, frames: Sequence[np.ndarray], gt: np.ndarray, s) -> dict:
+    """:func:`summarise` of the Dice of every segmenter on ``frames`` (uint8 RGB at any size)
+    against ``gt`` (N, h, w) bool at the segmenter's size."""
+    import torch
+
+    from sim2real.inference.realset import fit_image
+    from sim2real.metrics.realism import dice as dice_score
+    from sim2real.metrics.segmenter import predict
+
+    x = torch.from_numpy(np.stack([fit_image(f, s.seg_height, s.seg_width) for f in frames])).permute(0, 3, 1, 2)
+    return summarise([dice_score(predict(m, x.contiguous()), gt) for m in models], s.seg_max_spread)
