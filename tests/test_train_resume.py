@@ -1,10 +1,16 @@
 """``sim2real train ... --resume``: the run's own command with ``--resume`` appended continues
 it; flags that conflict with the checkpoint are refused (all named, nothing written);
-``--out RUN --resume --set ...`` changes fields and says so."""
+``--out RUN --resume --set ...`` changes fields and says so. One writer per run folder: a second
+process is refused with the holder's pid and host, and a lock left by a killed process
+(SIGKILL) blocks nobody."""
 
 import hashlib
 import json
+import os
 import shutil
+import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -13,7 +19,11 @@ import yaml
 from sim2real.cli.main import main
 from sim2real.config import preset
 from sim2real.engine.checkpoint import load_checkpoint
+from sim2real.engine.runlock import LOCK_NAME
 from train_data import real_dir, scene_dir
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
@@ -119,3 +129,41 @@ def test_resume_without_preset_changes_fields_and_says_so(capsys, run_dir):
     state = load_checkpoint(run_dir / "checkpoints" / "last.pt")
     assert state["step"] == 3 and state["config"]["log_every"] == 1 and state["config"]["loss"]["vc"] == 5.0
 
+
+HOLDER = ("import sys, time; from sim2real.engine.runlock import RunLock; lock = RunLock(sys.argv[1]).acquire(); "
+          "print('locked', flush=True); time.sleep(600)")
+
+
+def test_one_writer_per_run_and_a_killed_holder_blocks_nobody(capsys, run_dir):
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(run_dir)], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(SRC)})
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        before = snapshot(run_dir)
+        code, _, err = cli(capsys, ["train", "--out", run_dir, "--resume", "--iterations", "3", "--no-progress"])
+        assert code == 2
+        line = one_error_line(err)
+        assert f"pid {holder.pid} on {socket.gethostname()}" in line and str(run_dir) in line
+        assert snapshot(run_dir) == before  # the refused process wrote nothing
+    finally:
+        holder.kill()  # SIGKILL: no chance to unlock; the kernel drops the lock
+        holder.wait()
+        holder.stdout.close()
+    assert holder.returncode == -9
+    assert (run_dir / LOCK_NAME).read_text().split()[0] == str(holder.pid)  # the dead holder's pid is still there
+    code, out, err = cli(capsys, ["train", "--out", run_dir, "--resume", "--iterations", "3", "--no-progress"])
+    assert code == 0, err
+    assert load_checkpoint(run_dir / "checkpoints" / "last.pt")["step"] == 3
+    assert (run_dir / LOCK_NAME).read_text() == ""  # released at the end
+
+
+def test_lock_in_one_process(tmp_path):
+    from sim2real.engine.runlock import RunLock
+    from sim2real.errors import UserError
+
+    with RunLock(tmp_path) as first:
+        assert first.held and (tmp_path / LOCK_NAME).read_text().split()[0] == str(os.getpid())
+        with pytest.raises(UserError, match=f"pid {os.getpid()} on "):
+            RunLock(tmp_path).acquire()  # flock: a second open file description conflicts, even in-process
+    assert not first.held
+    RunLock(tmp_path).acquire().release()

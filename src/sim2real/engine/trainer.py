@@ -20,6 +20,8 @@ Every loss term is checked for NaN/inf before its optimiser steps; a non-finite 
 run with a UserError naming the last good checkpoint. On CUDA the forward passes run under
 bf16 autocast with channels-last images and networks (no loss scaling is needed for bf16);
 on the CPU everything is fp32 (engine/precision.py). The device is chosen at run time.
+
+Rank 0 holds the run folder's lock (engine/runlock.py) from construction to :meth:`Trainer.close`.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from sim2real.engine import checkpoint as ckpt
 from sim2real.engine import distributed, precision
 from sim2real.engine.method import get_method
 from sim2real.engine.observe import Observer
+from sim2real.engine.runlock import LOCK_NAME, RunLock, close_inherited
 from sim2real.errors import UserError
 from sim2real.threads import single_thread_worker, usable_cores
 
@@ -79,6 +82,12 @@ def _adam(params, lr: float, cfg: TrainConfig, device: torch.device) -> torch.op
         return torch.optim.Adam(params, **kw)
 
 
+def _worker_init(worker_id: int) -> None:
+    """A DataLoader worker: one compute thread and no copy of the run lock."""
+    single_thread_worker(worker_id)
+    close_inherited()
+
+
 def _worker_message(e: UserError) -> str:
     """The original message of a UserError re-raised by a DataLoader worker (one line)."""
     text = str(e)
@@ -103,9 +112,6 @@ class Trainer:
 
     def __init__(self, cfg: TrainConfig, scenes=None, real=None, out=None, resume=None, progress: bool = True,
                  resume_state: dict | None = None):
-        from sim2real.config import save_yaml
-        from sim2real.fileio import prepare_output_dir
-
         validate(cfg)
         self.cfg = cfg
         self.method = get_method(cfg)
@@ -135,10 +141,41 @@ class Trainer:
         self.sources = resolve_scenes(scenes, cfg.data.height, cfg.data.width)
         self.real = RealImages(real)
         self.out = Path(out)
-        if state is None:
-            distributed.on_main(self.dist, lambda: prepare_output_dir(self.out))
         self.ckpt_dir = self.out / "checkpoints"
+        self.lock = RunLock(self.out)
+        # rank 0 takes the run folder; a refusal there is raised on every rank, before any trains
+        distributed.on_main(self.dist, lambda: self._take_run_folder(state, resume))
+        try:
+            self._build(state, resume, progress)
+        except BaseException:
+            self.lock.release()
+            raise
 
+    def _take_run_folder(self, state: dict | None, resume) -> None:
+        """Lock the run folder (rank 0). A fresh run needs it empty (checked before the lock is
+        created in it, and again under the lock); a resumed run needs its checkpoint unchanged
+        since it was read (another process may have written it in between)."""
+        from sim2real.fileio import prepare_output_dir
+
+        if state is None:
+            prepare_output_dir(self.out)
+        else:  # resuming into another folder (Trainer(resume=...) from code) starts it
+            self.out.mkdir(parents=True, exist_ok=True)
+        self.lock.acquire()
+        try:
+            if state is None:
+                prepare_output_dir(self.out, allowed=(LOCK_NAME,))
+            elif resume is not None and ckpt.stamp(resume) != state.get("stamp"):
+                raise UserError(f"checkpoint {resume} was rewritten by another process while this one started; "
+                                "run the command again")
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def _build(self, state: dict | None, resume, progress: bool) -> None:
+        from sim2real.config import save_yaml
+
+        cfg = self.cfg
         # networks, textures, optimisers (same seed on every rank; DDP also broadcasts rank 0's)
         random.seed(cfg.seed)
         np.random.seed(cfg.seed)
@@ -296,7 +333,7 @@ class Trainer:
         return torch.utils.data.DataLoader(
             self.dataset, batch_size=1, sampler=StepSampler(self.step, self.cfg.iterations), num_workers=w,
             pin_memory=self.cuda, prefetch_factor=4 if w else None, persistent_workers=False,
-            worker_init_fn=single_thread_worker if w else None,
+            worker_init_fn=_worker_init if w else None,
         )
 
     def train(self, time_limit_s: float | None = None) -> Path:
@@ -359,6 +396,8 @@ class Trainer:
         return distributed.any_true(self.dist, torch.tensor(past, device=self.device))
 
     def close(self) -> None:
+        """Release the run folder's lock and leave the process group."""
+        self.lock.release()
         distributed.teardown(self.dist)
 
 
