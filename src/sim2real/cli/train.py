@@ -13,6 +13,8 @@
 * ``--out RUN --resume`` alone: the checkpoint's configuration and inputs, changed only by the
   flags given (e.g. ``--set data.workers=4``); each change is printed.
 
+SIGTERM or SIGINT stops the run after the step in progress with a checkpoint; the exit code is
+then 128 + the signal's number (143, 130). One process at a time may write to a run folder.
 Multi-GPU / multi-node: start it with ``torchrun`` (docs/training.md).
 """
 
@@ -112,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from sim2real.engine import checkpoint as ckpt
+    from sim2real.engine.stop import exit_code, signal_name
     from sim2real.engine.trainer import Trainer
     from sim2real.errors import UserError
 
@@ -142,6 +145,11 @@ def run(args: argparse.Namespace) -> int:
         last = trainer.train(time_limit_s=None if args.max_minutes is None else 60.0 * args.max_minutes)
     finally:
         trainer.close()
+    if trainer.stopped_by:
+        if trainer.dist.is_main:
+            print(f"training stopped by {signal_name(trainer.stopped_by)} at step {trainer.step}; checkpoint {last} "
+                  "(continue with --resume)")
+        return exit_code(trainer.stopped_by)
     if trainer.dist.is_main:
         print(f"training finished at step {trainer.step}; checkpoint {last}")
     return 0

@@ -21,7 +21,9 @@ run with a UserError naming the last good checkpoint. On CUDA the forward passes
 bf16 autocast with channels-last images and networks (no loss scaling is needed for bf16);
 on the CPU everything is fp32 (engine/precision.py). The device is chosen at run time.
 
-Rank 0 holds the run folder's lock (engine/runlock.py) from construction to :meth:`Trainer.close`.
+SIGTERM / SIGINT stop the loop after the step in progress, with a checkpoint of that step
+(engine/stop.py); the ranks agree on it, and on the time limit, at every step boundary. Rank 0
+holds the run folder's lock (engine/runlock.py) from construction to :meth:`Trainer.close`.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from sim2real.engine import distributed, precision
 from sim2real.engine.method import get_method
 from sim2real.engine.observe import Observer
 from sim2real.engine.runlock import LOCK_NAME, RunLock, close_inherited
+from sim2real.engine.stop import StopSignals, ignore_in_worker
 from sim2real.errors import UserError
 from sim2real.threads import single_thread_worker, usable_cores
 
@@ -83,9 +86,11 @@ def _adam(params, lr: float, cfg: TrainConfig, device: torch.device) -> torch.op
 
 
 def _worker_init(worker_id: int) -> None:
-    """A DataLoader worker: one compute thread and no copy of the run lock."""
+    """A DataLoader worker: one compute thread, no copy of the run lock, and SIGTERM / SIGINT
+    left to the main process (engine/stop.py)."""
     single_thread_worker(worker_id)
     close_inherited()
+    ignore_in_worker()
 
 
 def _worker_message(e: UserError) -> str:
@@ -214,6 +219,8 @@ class Trainer:
         """The translations of the latest step (for image grids)."""
         self.hooks: list[Callable[[int, dict[str, float]], None]] = []
         """Called after every step with ``(step, {name: value})``; costs one sync per step."""
+        self.stopped_by = 0
+        """The signal (SIGTERM, SIGINT) that stopped the latest :meth:`train`, 0 for none."""
 
     # --- checkpoints -----------------------------------------------------------------------------
 
@@ -341,6 +348,9 @@ class Trainer:
 
         ``time_limit_s``: also stop (with a final checkpoint) after the first step that ends past
         this many wall-clock seconds; the progress bar then counts steps without a total.
+        SIGTERM / SIGINT (engine/stop.py) also stop it after the step in progress, with a
+        checkpoint; :attr:`stopped_by` is then that signal's number (0 otherwise). Under DDP all
+        ranks agree on both at every step boundary, so they stop at the same step.
         """
         cfg = self.cfg
         deadline = None if time_limit_s is None else time.perf_counter() + time_limit_s
@@ -349,38 +359,43 @@ class Trainer:
             os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
             # CUDA has no deterministic backward for reflection/replication padding: warn there
             torch.use_deterministic_algorithms(True, warn_only=self.cuda)
+        self.stopped_by = 0
         obs = Observer(self.out, cfg.iterations if deadline is None else None, self.step, self.dist.is_main,
                        self.progress)
         try:
-            if self.last_checkpoint is None:
-                self.save_checkpoint()  # step 0: a run killed at once can still --resume
-            first = self.step
-            it = iter(self._loader())
-            stop = cfg.iterations
-            while self.step < stop:
-                try:
-                    batch = next(it)
-                except UserError as e:
-                    raise UserError(_worker_message(e)) from None
-                step = self.step
-                losses = self.train_step(self._to_device(batch), step)
-                self.step = step + 1
-                obs.accumulate(losses)
-                obs.step_done()
-                if self.hooks:
-                    values = dict(zip(losses, torch.stack(list(losses.values())).tolist()))
-                    for hook in self.hooks:
-                        hook(step, values)
-                if deadline is not None and self._past(deadline):
-                    stop = self.step
-                if self.step % cfg.log_every == 0 or self.step == stop:
-                    lrs = {k: s.get_last_lr()[0] for k, s in self.schedulers.items()}
-                    obs.log(self.step, lrs, {"schedule/vc_weight": self.method.vc_weight(step)})
-                if step == first or self.step % cfg.image_every == 0:
-                    obs.images(self.step, self.method.image_rows(batch, self.last_out))
-                self.last_out = None
-                if self.step % cfg.checkpoint_every == 0 or self.step == stop:
-                    self.save_checkpoint()
+            with StopSignals(announce=self.dist.is_main) as signals:
+                if self.last_checkpoint is None:
+                    self.save_checkpoint()  # step 0: a run killed at once can still --resume
+                first = self.step
+                stop = self.step if self._stop_requested(None, signals) else cfg.iterations
+                it = iter(self._loader()) if self.step < stop else None
+                while self.step < stop:
+                    try:
+                        batch = next(it)
+                    except UserError as e:
+                        raise UserError(_worker_message(e)) from None
+                    step = self.step
+                    losses = self.train_step(self._to_device(batch), step)
+                    self.step = step + 1
+                    obs.accumulate(losses)
+                    obs.step_done()
+                    if self.hooks:
+                        values = dict(zip(losses, torch.stack(list(losses.values())).tolist()))
+                        for hook in self.hooks:
+                            hook(step, values)
+                    if self._stop_requested(deadline, signals):
+                        stop = self.step
+                    if self.step % cfg.log_every == 0 or self.step == stop:
+                        lrs = {k: s.get_last_lr()[0] for k, s in self.schedulers.items()}
+                        obs.log(self.step, lrs, {"schedule/vc_weight": self.method.vc_weight(step)})
+                    if step == first or self.step % cfg.image_every == 0:
+                        obs.images(self.step, self.method.image_rows(batch, self.last_out))
+                    self.last_out = None
+                    if self.step % cfg.checkpoint_every == 0 or self.step == stop:
+                        self.save_checkpoint()  # a signal meanwhile is only recorded: the write completes
+                del it  # shuts the loader workers down while the signals are still deferred
+                # a signal that came during the last checkpoint counts too (agreed by all ranks)
+                self.stopped_by = self._agree(False, signals.signum)[1]
             return self.last_checkpoint
         finally:
             obs.close()
@@ -388,12 +403,18 @@ class Trainer:
             if cfg.deterministic:
                 torch.use_deterministic_algorithms(prev_det)
 
-    def _past(self, deadline: float) -> bool:
-        """Whether any rank's clock is past ``deadline`` (so that all ranks stop at the same step)."""
-        past = time.perf_counter() > deadline
-        if not self.dist.enabled:  # no collective: no device round trip either
-            return past
-        return distributed.any_true(self.dist, torch.tensor(past, device=self.device))
+    def _stop_requested(self, deadline: float | None, signals: StopSignals) -> bool:
+        """Whether any rank's clock is past ``deadline`` or any rank got a stop signal."""
+        past = deadline is not None and time.perf_counter() > deadline
+        past, signum = self._agree(past, signals.signum)
+        return past or bool(signum)
+
+    def _agree(self, past: bool, signum: int) -> tuple[bool, int]:
+        """The maximum over the ranks of (past the deadline, signal number): one all-reduce of two
+        integers at every step boundary under DDP (the run's only other per-step collective is the
+        NaN check's); nothing in one process."""
+        past, signum = distributed.max_ints(self.dist, [int(past), int(signum)], self.device)
+        return bool(past), signum
 
     def close(self) -> None:
         """Release the run folder's lock and leave the process group."""
