@@ -1,6 +1,11 @@
 """DDP: two CPU processes on the gloo backend train the tiny preset on two scenes; each rank
 draws its own samples, yet all parameters (translator, discriminators and the replicated
-textures of both scenes) stay identical across ranks."""
+textures of both scenes) stay identical across ranks. A SIGTERM that only rank 1 receives
+stops both ranks at the same step, with a checkpoint of that step."""
+
+import datetime
+import os
+import signal
 
 import torch
 import torch.multiprocessing as mp
@@ -8,7 +13,7 @@ import torch.multiprocessing as mp
 from sim2real.engine.checkpoint import load_checkpoint
 from train_data import real_dir, scene_dir, tiny_config
 
-ITERS = 3
+ITERS = 3  # steps trained: rank 1 gets a SIGTERM during the last one (of ITERS + 3 configured)
 
 
 def _worker(rank, world, init_file, scenes, real, out, results):
@@ -17,13 +22,19 @@ def _worker(rank, world, init_file, scenes, real, out, results):
     from sim2real.engine.trainer import Trainer
 
     torch.set_num_threads(1)
-    dist.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
+    # a rank left waiting in a collective (the ranks disagreeing on the stop) fails instead of hanging
+    dist.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world,
+                            timeout=datetime.timedelta(seconds=120))
     try:
-        trainer = Trainer(tiny_config(iterations=ITERS, image_every=100, device="cpu"), scenes, real, out, progress=False)
+        cfg = tiny_config(iterations=ITERS + 3, image_every=100, device="cpu")
+        trainer = Trainer(cfg, scenes, real, out, progress=False)
         assert trainer.dist.world_size == world and trainer.dist.rank == rank
         losses = {}
         trainer.hooks.append(lambda s, v: losses.__setitem__(s, v))
+        if rank == 1:  # a real signal, to this rank's process only
+            trainer.hooks.append(lambda s, v: os.kill(os.getpid(), signal.SIGTERM) if s == ITERS - 1 else None)
         trainer.train()
+        assert trainer.stopped_by == signal.SIGTERM and trainer.step == ITERS
         sampled = [int(trainer.dataset[s]["scene"]) for s in range(ITERS)]
         torch.save({"gen": trainer.gen.state_dict(), "dis": trainer.dis.state_dict(), "losses": losses,
                     "sampled": sampled}, f"{results}/rank{rank}.pt")
@@ -53,5 +64,6 @@ def test_two_process_gloo_ddp_keeps_ranks_identical(tmp_path, tmp_path_factory):
         assert not torch.equal(start["gen"][k], r0["gen"][k]), k
     assert not torch.equal(start["gen"]["translator.enc_a.model.0.conv.weight"], r0["gen"]["translator.enc_a.model.0.conv.weight"])
     end = load_checkpoint(out / "checkpoints" / "last.pt")
+    assert sorted(r0["losses"]) == sorted(r1["losses"]) == list(range(ITERS))  # both stopped after step ITERS
     assert end["step"] == ITERS and end["world_size"] == 2 and len(end["rng"]) == 2
     assert all(torch.equal(end["gen"][k], r0["gen"][k]) for k in r0["gen"])

@@ -271,6 +271,20 @@ def to_dict(cfg: Any) -> dict:
     return dataclasses.asdict(cfg)
 
 
+def differences(a: Any, b: Any) -> list[tuple[str, Any, Any]]:
+    """``(dotted key, value in a, value in b)`` for every field where configs ``a`` and ``b``
+    (of one dataclass type) differ, in field order."""
+
+    def flat(d: dict, prefix: str = "") -> dict:
+        out = {}
+        for k, v in d.items():
+            out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
+        return out
+
+    fa, fb = flat(to_dict(a)), flat(to_dict(b))
+    return [(k, fa[k], fb[k]) for k in fa if fa[k] != fb[k]]
+
+
 def from_dict(cls: type, data: dict, where: str = "") -> Any:
     """Build dataclass ``cls`` from a plain dict; unknown keys are an error."""
     if not isinstance(data, dict):

@@ -2,9 +2,19 @@
 
     sim2real train --preset {paper,small,tiny} --scenes DIR... --real DIR --out RUN
                    [--iterations N] [--max-minutes M] [--checkpoint-every N] [--device {auto,cpu,cuda}]
-                   [--set section.field=value ...] [--config YAML]
+                   [--set section.field=value ...] [--config YAML] [--resume]
     sim2real train --out RUN --resume [--iterations N] [--set ...]
 
+``--resume`` continues RUN from its last checkpoint, in one of two ways:
+
+* the command that started the run, with ``--resume`` appended: every flag must agree with
+  the checkpoint's configuration and inputs, except ``--iterations``, ``--max-minutes`` and
+  ``--checkpoint-every``; a conflict is refused, naming each key with both values;
+* ``--out RUN --resume`` alone: the checkpoint's configuration and inputs, changed only by the
+  flags given (e.g. ``--set data.workers=4``); each change is printed.
+
+SIGTERM or SIGINT stops the run after the step in progress with a checkpoint; the exit code is
+then 128 + the signal's number (143, 130). One process at a time may write to a run folder.
 Multi-GPU / multi-node: start it with ``torchrun`` (docs/training.md).
 """
 
@@ -13,6 +23,9 @@ from __future__ import annotations
 import argparse
 
 from sim2real.cli.args import positive_float, positive_int
+
+RESUMABLE = ("iterations", "checkpoint_every")
+"""Config fields that a resume may change without notice (so may ``--max-minutes``)."""
 
 
 def register(sub) -> None:
@@ -30,7 +43,8 @@ def register(sub) -> None:
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="where to train (default: config, auto)")
     p.add_argument("--set", dest="overrides", action="append", nargs="+", default=[], metavar="KEY=VALUE",
                    help="override any config field, e.g. --set loss.vc=10 data.workers=4")
-    p.add_argument("--resume", action="store_true", help="continue RUN from RUN/checkpoints/last.pt")
+    p.add_argument("--resume", action="store_true",
+                   help="continue RUN from RUN/checkpoints/last.pt (append it to the run's command, or give --out alone)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -55,24 +69,63 @@ def build_config(args: argparse.Namespace, base=None):
     return override(cfg, sets)
 
 
+def _show(value) -> str:
+    if isinstance(value, str):
+        return repr(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(map(_show, value)) + "]"
+    return str(value)
+
+
+def resume_config(args: argparse.Namespace, state: dict, path) -> tuple[object, list[tuple[str, object, object]]]:
+    """The config of a resumed run and the changes it makes to the checkpoint's, as
+    ``(key, checkpoint value, new value)``.
+
+    With ``--preset`` or ``--config`` the flags must describe the checkpoint's run: the config
+    they build is compared with the checkpoint's field by field (``RESUMABLE`` fields aside),
+    and ``--scenes`` / ``--real`` with its inputs; any difference is refused, all of them
+    named in one line. Without, the checkpoint's config is changed by the flags given.
+    """
+    from pathlib import Path
+
+    from sim2real.config import TrainConfig, differences, from_dict
+    from sim2real.errors import UserError
+
+    saved = from_dict(TrainConfig, state["config"])
+    if args.preset and args.config:
+        raise UserError("give either --preset or --config, not both")
+    given = args.preset or args.config
+    cfg = build_config(args, None if given else saved)
+    changes = [d for d in differences(saved, cfg) if d[0] not in RESUMABLE]
+    inputs = state["inputs"]
+    if args.scenes and [str(Path(s).resolve()) for s in args.scenes] != inputs["scenes"]:
+        changes.append(("--scenes", inputs["scenes"], [str(Path(s).resolve()) for s in args.scenes]))
+    if args.real and str(Path(args.real).resolve()) != inputs["real"]:
+        changes.append(("--real", inputs["real"], str(Path(args.real).resolve())))
+    if given and changes:
+        listed = "; ".join(f"{k}: {_show(a)} in the checkpoint, {_show(b)} here" for k, a, b in changes)
+        raise UserError(f"--resume: the flags conflict with checkpoint {path} (step {state['step']}): {listed}. "
+                        "Give the run's own values, or change fields on purpose with "
+                        "'--out RUN --resume --set KEY=VALUE' (no --preset/--config)")
+    return cfg, changes
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from sim2real.config import TrainConfig, from_dict
     from sim2real.engine import checkpoint as ckpt
+    from sim2real.engine.stop import exit_code, signal_name
     from sim2real.engine.trainer import Trainer
     from sim2real.errors import UserError
 
     state = path = None
+    changes = []
     if args.resume:
-        if args.preset or args.config:
-            raise UserError("--resume takes the run's configuration from its checkpoint; "
-                            "leave out --preset/--config (change fields with --set)")
         path = Path(args.out) / "checkpoints" / ckpt.LAST
         if not path.is_file():
             raise UserError(f"nothing to resume: no checkpoint at {path}")
         state = ckpt.load_checkpoint(path)
-        cfg = build_config(args, from_dict(TrainConfig, state["config"]))
+        cfg, changes = resume_config(args, state, path)
     else:
         if not args.preset and not args.config:
             raise UserError("give --preset (paper, small or tiny) or --config, or --resume a run")
@@ -86,9 +139,17 @@ def run(args: argparse.Namespace) -> int:
     trainer = Trainer(cfg, scenes=args.scenes, real=args.real, out=args.out, resume=path,
                       progress=not args.no_progress, resume_state=state)
     try:
+        if changes and trainer.dist.is_main:
+            listed = ", ".join(f"{k} {_show(a)} -> {_show(b)}" for k, a, b in changes)
+            print(f"resuming {args.out} at step {trainer.step} with changes: {listed}", flush=True)
         last = trainer.train(time_limit_s=None if args.max_minutes is None else 60.0 * args.max_minutes)
     finally:
         trainer.close()
+    if trainer.stopped_by:
+        if trainer.dist.is_main:
+            print(f"training stopped by {signal_name(trainer.stopped_by)} at step {trainer.step}; checkpoint {last} "
+                  "(continue with --resume)")
+        return exit_code(trainer.stopped_by)
     if trainer.dist.is_main:
         print(f"training finished at step {trainer.step}; checkpoint {last}")
     return 0

@@ -80,16 +80,31 @@ def keep_copy(path: Path, step: int) -> Path:
     return dst
 
 
+def stamp(path: str | os.PathLike) -> list[int] | None:
+    """(inode, mtime in ns, size) of ``path``, None when it is missing: every atomic rewrite
+    changes the inode."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return [st.st_ino, st.st_mtime_ns, st.st_size]
+
+
 def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
+    """Read a checkpoint. The dict also holds ``stamp``, the :func:`stamp` of the file that was
+    read (the trainer checks it under the run lock: the file must not have been rewritten since)."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"no checkpoint at {path}")
     try:
-        state = torch.load(path, map_location=map_location, weights_only=True)
+        with open(path, "rb") as f:  # the stamp of the very file read, even if it is replaced meanwhile
+            st = os.fstat(f.fileno())
+            state = torch.load(f, map_location=map_location, weights_only=True)
     except Exception as e:
         raise UserError(f"cannot read checkpoint {path}: {type(e).__name__}: {e}") from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise UserError(f"{path} is not a sim2real training checkpoint")
+    state["stamp"] = [st.st_ino, st.st_mtime_ns, st.st_size]
     return state
 
 

@@ -80,6 +80,16 @@ def any_true(info: DistInfo, flag: torch.Tensor) -> bool:
     return bool(flag.item())
 
 
+def max_ints(info: DistInfo, values: list[int], device: torch.device) -> list[int]:
+    """The element-wise maximum of ``values`` over all ranks (one all-reduce and one host sync);
+    ``values`` itself in one process."""
+    if not info.enabled:
+        return list(values)
+    t = torch.tensor(values, dtype=torch.int64, device=device)
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return [int(v) for v in t.tolist()]
+
+
 def on_main(info: DistInfo, fn) -> None:
     """Run ``fn`` on rank 0 only; a UserError it raises is raised on every rank (no rank is left
     waiting in a collective)."""

@@ -20,6 +20,10 @@ Every loss term is checked for NaN/inf before its optimiser steps; a non-finite 
 run with a UserError naming the last good checkpoint. On CUDA the forward passes run under
 bf16 autocast with channels-last images and networks (no loss scaling is needed for bf16);
 on the CPU everything is fp32 (engine/precision.py). The device is chosen at run time.
+
+SIGTERM / SIGINT stop the loop after the step in progress, with a checkpoint of that step
+(engine/stop.py); the ranks agree on it, and on the time limit, at every step boundary. Rank 0
+holds the run folder's lock (engine/runlock.py) from construction to :meth:`Trainer.close`.
 """
 
 from __future__ import annotations
@@ -42,6 +46,8 @@ from sim2real.engine import checkpoint as ckpt
 from sim2real.engine import distributed, precision
 from sim2real.engine.method import get_method
 from sim2real.engine.observe import Observer
+from sim2real.engine.runlock import LOCK_NAME, RunLock, close_inherited
+from sim2real.engine.stop import StopSignals, ignore_in_worker
 from sim2real.errors import UserError
 from sim2real.threads import single_thread_worker, usable_cores
 
@@ -79,6 +85,14 @@ def _adam(params, lr: float, cfg: TrainConfig, device: torch.device) -> torch.op
         return torch.optim.Adam(params, **kw)
 
 
+def _worker_init(worker_id: int) -> None:
+    """A DataLoader worker: one compute thread, no copy of the run lock, and SIGTERM / SIGINT
+    left to the main process (engine/stop.py)."""
+    single_thread_worker(worker_id)
+    close_inherited()
+    ignore_in_worker()
+
+
 def _worker_message(e: UserError) -> str:
     """The original message of a UserError re-raised by a DataLoader worker (one line)."""
     text = str(e)
@@ -103,9 +117,6 @@ class Trainer:
 
     def __init__(self, cfg: TrainConfig, scenes=None, real=None, out=None, resume=None, progress: bool = True,
                  resume_state: dict | None = None):
-        from sim2real.config import save_yaml
-        from sim2real.fileio import prepare_output_dir
-
         validate(cfg)
         self.cfg = cfg
         self.method = get_method(cfg)
@@ -135,10 +146,41 @@ class Trainer:
         self.sources = resolve_scenes(scenes, cfg.data.height, cfg.data.width)
         self.real = RealImages(real)
         self.out = Path(out)
-        if state is None:
-            distributed.on_main(self.dist, lambda: prepare_output_dir(self.out))
         self.ckpt_dir = self.out / "checkpoints"
+        self.lock = RunLock(self.out)
+        # rank 0 takes the run folder; a refusal there is raised on every rank, before any trains
+        distributed.on_main(self.dist, lambda: self._take_run_folder(state, resume))
+        try:
+            self._build(state, resume, progress)
+        except BaseException:
+            self.lock.release()
+            raise
 
+    def _take_run_folder(self, state: dict | None, resume) -> None:
+        """Lock the run folder (rank 0). A fresh run needs it empty (checked before the lock is
+        created in it, and again under the lock); a resumed run needs its checkpoint unchanged
+        since it was read (another process may have written it in between)."""
+        from sim2real.fileio import prepare_output_dir
+
+        if state is None:
+            prepare_output_dir(self.out)
+        else:  # resuming into another folder (Trainer(resume=...) from code) starts it
+            self.out.mkdir(parents=True, exist_ok=True)
+        self.lock.acquire()
+        try:
+            if state is None:
+                prepare_output_dir(self.out, allowed=(LOCK_NAME,))
+            elif resume is not None and ckpt.stamp(resume) != state.get("stamp"):
+                raise UserError(f"checkpoint {resume} was rewritten by another process while this one started; "
+                                "run the command again")
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def _build(self, state: dict | None, resume, progress: bool) -> None:
+        from sim2real.config import save_yaml
+
+        cfg = self.cfg
         # networks, textures, optimisers (same seed on every rank; DDP also broadcasts rank 0's)
         random.seed(cfg.seed)
         np.random.seed(cfg.seed)
@@ -177,6 +219,8 @@ class Trainer:
         """The translations of the latest step (for image grids)."""
         self.hooks: list[Callable[[int, dict[str, float]], None]] = []
         """Called after every step with ``(step, {name: value})``; costs one sync per step."""
+        self.stopped_by = 0
+        """The signal (SIGTERM, SIGINT) that stopped the latest :meth:`train`, 0 for none."""
 
     # --- checkpoints -----------------------------------------------------------------------------
 
@@ -296,7 +340,7 @@ class Trainer:
         return torch.utils.data.DataLoader(
             self.dataset, batch_size=1, sampler=StepSampler(self.step, self.cfg.iterations), num_workers=w,
             pin_memory=self.cuda, prefetch_factor=4 if w else None, persistent_workers=False,
-            worker_init_fn=single_thread_worker if w else None,
+            worker_init_fn=_worker_init if w else None,
         )
 
     def train(self, time_limit_s: float | None = None) -> Path:
@@ -304,6 +348,9 @@ class Trainer:
 
         ``time_limit_s``: also stop (with a final checkpoint) after the first step that ends past
         this many wall-clock seconds; the progress bar then counts steps without a total.
+        SIGTERM / SIGINT (engine/stop.py) also stop it after the step in progress, with a
+        checkpoint; :attr:`stopped_by` is then that signal's number (0 otherwise). Under DDP all
+        ranks agree on both at every step boundary, so they stop at the same step.
         """
         cfg = self.cfg
         deadline = None if time_limit_s is None else time.perf_counter() + time_limit_s
@@ -312,38 +359,43 @@ class Trainer:
             os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
             # CUDA has no deterministic backward for reflection/replication padding: warn there
             torch.use_deterministic_algorithms(True, warn_only=self.cuda)
+        self.stopped_by = 0
         obs = Observer(self.out, cfg.iterations if deadline is None else None, self.step, self.dist.is_main,
                        self.progress)
         try:
-            if self.last_checkpoint is None:
-                self.save_checkpoint()  # step 0: a run killed at once can still --resume
-            first = self.step
-            it = iter(self._loader())
-            stop = cfg.iterations
-            while self.step < stop:
-                try:
-                    batch = next(it)
-                except UserError as e:
-                    raise UserError(_worker_message(e)) from None
-                step = self.step
-                losses = self.train_step(self._to_device(batch), step)
-                self.step = step + 1
-                obs.accumulate(losses)
-                obs.step_done()
-                if self.hooks:
-                    values = dict(zip(losses, torch.stack(list(losses.values())).tolist()))
-                    for hook in self.hooks:
-                        hook(step, values)
-                if deadline is not None and self._past(deadline):
-                    stop = self.step
-                if self.step % cfg.log_every == 0 or self.step == stop:
-                    lrs = {k: s.get_last_lr()[0] for k, s in self.schedulers.items()}
-                    obs.log(self.step, lrs, {"schedule/vc_weight": self.method.vc_weight(step)})
-                if step == first or self.step % cfg.image_every == 0:
-                    obs.images(self.step, self.method.image_rows(batch, self.last_out))
-                self.last_out = None
-                if self.step % cfg.checkpoint_every == 0 or self.step == stop:
-                    self.save_checkpoint()
+            with StopSignals(announce=self.dist.is_main) as signals:
+                if self.last_checkpoint is None:
+                    self.save_checkpoint()  # step 0: a run killed at once can still --resume
+                first = self.step
+                stop = self.step if self._stop_requested(None, signals) else cfg.iterations
+                it = iter(self._loader()) if self.step < stop else None
+                while self.step < stop:
+                    try:
+                        batch = next(it)
+                    except UserError as e:
+                        raise UserError(_worker_message(e)) from None
+                    step = self.step
+                    losses = self.train_step(self._to_device(batch), step)
+                    self.step = step + 1
+                    obs.accumulate(losses)
+                    obs.step_done()
+                    if self.hooks:
+                        values = dict(zip(losses, torch.stack(list(losses.values())).tolist()))
+                        for hook in self.hooks:
+                            hook(step, values)
+                    if self._stop_requested(deadline, signals):
+                        stop = self.step
+                    if self.step % cfg.log_every == 0 or self.step == stop:
+                        lrs = {k: s.get_last_lr()[0] for k, s in self.schedulers.items()}
+                        obs.log(self.step, lrs, {"schedule/vc_weight": self.method.vc_weight(step)})
+                    if step == first or self.step % cfg.image_every == 0:
+                        obs.images(self.step, self.method.image_rows(batch, self.last_out))
+                    self.last_out = None
+                    if self.step % cfg.checkpoint_every == 0 or self.step == stop:
+                        self.save_checkpoint()  # a signal meanwhile is only recorded: the write completes
+                del it  # shuts the loader workers down while the signals are still deferred
+                # a signal that came during the last checkpoint counts too (agreed by all ranks)
+                self.stopped_by = self._agree(False, signals.signum)[1]
             return self.last_checkpoint
         finally:
             obs.close()
@@ -351,14 +403,22 @@ class Trainer:
             if cfg.deterministic:
                 torch.use_deterministic_algorithms(prev_det)
 
-    def _past(self, deadline: float) -> bool:
-        """Whether any rank's clock is past ``deadline`` (so that all ranks stop at the same step)."""
-        past = time.perf_counter() > deadline
-        if not self.dist.enabled:  # no collective: no device round trip either
-            return past
-        return distributed.any_true(self.dist, torch.tensor(past, device=self.device))
+    def _stop_requested(self, deadline: float | None, signals: StopSignals) -> bool:
+        """Whether any rank's clock is past ``deadline`` or any rank got a stop signal."""
+        past = deadline is not None and time.perf_counter() > deadline
+        past, signum = self._agree(past, signals.signum)
+        return past or bool(signum)
+
+    def _agree(self, past: bool, signum: int) -> tuple[bool, int]:
+        """The maximum over the ranks of (past the deadline, signal number): one all-reduce of two
+        integers at every step boundary under DDP (the run's only other per-step collective is the
+        NaN check's); nothing in one process."""
+        past, signum = distributed.max_ints(self.dist, [int(past), int(signum)], self.device)
+        return bool(past), signum
 
     def close(self) -> None:
+        """Release the run folder's lock and leave the process group."""
+        self.lock.release()
         distributed.teardown(self.dist)
 
 
