@@ -9,7 +9,8 @@ import pytest
 
 from eval_data import SCENE_SEED, fake_fid_weights, labelled_real_dir, tiny_run
 from sim2real.cli.main import main
-from sim2real.inference.evaluate import EvalSettings, evaluate, find_real, pool_orb
+from sim2real.inference.evaluate import EvalSettings, evaluate, find_real
+from sim2real.inference.rows import pool_orb
 from sim2real.inference.report import svg_line_plot
 from train_data import real_dir, scene_dir
 

@@ -33,3 +33,32 @@ def positive_float(text: str) -> float:
     if not value > 0 or value != value or value == float("inf"):
         raise argparse.ArgumentTypeError(f"expected a positive number, got '{text}'")
     return value
+
+
+def non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'")
+    return value
+
+
+def add_motion_args(p) -> None:
+    """The motion budget of generated test paths (:func:`sim2real.scene.trajectory.make_trajectory`)."""
+    from sim2real.scene.trajectory import DEFAULT_FLOW_BUDGET, DEFAULT_MAX_DEG_PER_FRAME, LOOKS
+
+    p.add_argument("--flow-budget", type=non_negative_float, default=DEFAULT_FLOW_BUDGET, metavar="F",
+                   help=f"median ground-truth flow per frame, fraction of the width (default {DEFAULT_FLOW_BUDGET:g}; "
+                        "0 = unbounded)")
+    p.add_argument("--max-deg-per-frame", type=non_negative_float, default=DEFAULT_MAX_DEG_PER_FRAME, metavar="D",
+                   help=f"camera rotation per frame, degrees (default {DEFAULT_MAX_DEG_PER_FRAME:g}; 0 = unbounded)")
+    p.add_argument("--look", choices=LOOKS, default="smooth",
+                   help="smooth look-at (default) or 'swing' between random liver points; "
+                        "'--look swing --flow-budget 0 --max-deg-per-frame 0' is the old, fast stress-test path")
+
+
+def motion_kwargs(args) -> dict:
+    return {"flow_budget": args.flow_budget or None, "max_deg_per_frame": args.max_deg_per_frame or None,
+            "look": args.look}

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from sim2real.cli.args import non_negative_int, positive_float, positive_int
+from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
 
 REAL_SEED_OFFSET = 1000
 """Real-domain scenes use seeds S + 1000, ...: never the simulated scenes' seeds."""
@@ -29,7 +29,9 @@ def register(sub) -> None:
     p.add_argument("--real-images", type=positive_int, default=200, help="stand-in real images")
     p.add_argument("--frames", type=positive_int, default=100, help="frames of the test trajectory")
     p.add_argument("--eval-views", type=positive_int, default=32, help="random views for the realism metrics")
-    p.add_argument("--seg-iterations", type=positive_int, default=200, help="training steps of the Dice segmenter")
+    p.add_argument("--seg-iterations", type=positive_int, default=1500,
+                   help="training steps of each Dice segmenter at most (each stops when its held-out Dice converges)")
+    add_motion_args(p)
     p.add_argument("--fid-weights", default=None, help="pt_inception-2015-12-05 weights for FID/KID (optional)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--seed", type=non_negative_int, default=0)
@@ -70,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = demo_config(args.preset, cuda, args.device)
     h, w = cfg.data.height, cfg.data.width
     settings = EvalSettings(views=args.eval_views, frames=args.frames, seg_iterations=args.seg_iterations,
-                            seg_height=h, seg_width=w, seed=args.seed)
+                            seed=args.seed, trajectory=motion_kwargs(args))
     # what would otherwise fail after the training: refused before anything is written
     validate(cfg)
     resolve_device(args.device)
@@ -96,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     print("demo: 4/5 translating the test trajectory", flush=True)
     traj_path = out / "trajectory.txt"
     make_trajectory(RayCaster(Scene.load(sim_dirs[0])), args.frames, h, w, cfg.data.fov_x_deg,
-                    seed=args.seed).save(traj_path)
+                    seed=args.seed, **motion_kwargs(args)).save(traj_path)
     model = load_run(out / "run", device=args.device)
     translate_sequence(model, trajectory_source(model, sim_dirs[0], traj_path), out / "video")
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import non_negative_int, positive_float, positive_int
+from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -44,12 +44,16 @@ def register(sub) -> None:
     p.add_argument("--batch", type=positive_int, default=8, help="frames per network call (default 8)")
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--max-real", type=positive_int, default=500, help="real images used for FID/KID (default 500)")
-    p.add_argument("--seg-iterations", type=non_negative_int, default=300, help="liver U-Net training steps (default 300)")
-    p.add_argument("--seg-size", type=_size, default=(128, 256), metavar="HxW", help="segmenter image size (default 128x256)")
+    p.add_argument("--seg-iterations", type=non_negative_int, default=1500,
+                   help="liver U-Net training steps at most; each stops when its held-out Dice converges (default 1500)")
+    p.add_argument("--seg-size", type=_size, default=(64, 128), metavar="HxW", help="segmenter image size (default 64x128)")
     p.add_argument("--orb-features", type=positive_int, default=1000)
     p.add_argument("--orb-max-k", type=positive_int, default=20, help="ORB curve up to this k (default 20)")
     p.add_argument("--threshold-mm", type=positive_float, default=1.0, help="ORB match correctness threshold (default 1 mm)")
     p.add_argument("--workers", type=positive_int, help="ray-casting processes (default: automatic)")
+    add_motion_args(p)
+    p.add_argument("--no-anchors", action="store_true", help="skip the ceiling and floor rows (faster, uncalibrated)")
+    p.add_argument("--seg-seeds", type=positive_int, default=3, help="liver U-Nets whose Dice is averaged (default 3)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars or messages")
     p.set_defaults(func=run)
 
@@ -60,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     s = EvalSettings(views=args.views, frames=args.frames, batch=args.batch, seed=args.seed, max_real=args.max_real,
                      seg_iterations=args.seg_iterations, seg_height=args.seg_size[0], seg_width=args.seg_size[1],
                      orb_features=args.orb_features, orb_max_k=args.orb_max_k, threshold_mm=args.threshold_mm,
-                     workers=args.workers)
+                     workers=args.workers, anchors=not args.no_anchors, seg_seeds=args.seg_seeds,
+                     trajectory=motion_kwargs(args))
     m = evaluate(args.run, args.scenes, args.real, args.out, trajectories=args.trajectory, settings=s,
                  fid_weights=args.fid_weights, device=args.device, checkpoint=args.checkpoint,
                  progress=not args.no_progress)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import non_negative_int, positive_float, positive_int
+from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
 from sim2real.errors import UserError
 
 
@@ -43,7 +43,8 @@ def register(sub) -> None:
     t.add_argument("--fov", type=positive_float, default=75.0, help="horizontal field of view, degrees")
     t.add_argument("--fps", type=positive_float, default=5.0)
     t.add_argument("--seed", type=non_negative_int, default=0)
-    t.add_argument("--out", required=True, help="trajectory file to write")
+    add_motion_args(t)
+    t.add_argument("--out", required=True, help="trajectory file to write (and its motion in OUT.json)")
     t.set_defaults(func=_trajectory)
 
 
@@ -112,7 +113,11 @@ def _trajectory(args: argparse.Namespace) -> int:
     scene = Scene.load(args.scene)
     caster = RayCaster(scene)
     check_camera_region(scene, caster)
-    traj = make_trajectory(caster, args.frames, args.height, args.width, args.fov, seed=args.seed, fps=args.fps)
+    traj = make_trajectory(caster, args.frames, args.height, args.width, args.fov, seed=args.seed, fps=args.fps,
+                           **motion_kwargs(args))
     traj.save(args.out)
-    print(f"{len(traj.cameras)} poses written to {args.out}")
+    m = traj.motion
+    print(f"{len(traj.cameras)} poses written to {args.out} (median flow {m['flow_px_per_frame_median']:.2f} px/frame, "
+          f"max rotation {m['deg_per_frame_max']:.2f} deg/frame, overlap after 10 frames {m['overlap']['10']:.0%}; "
+          f"{args.out}.json)")
     return 0

@@ -8,21 +8,26 @@ Protocol (scaled down by default so that it runs on a CPU; every number is a set
   crop) through the FID Inception network (:mod:`sim2real.metrics.inception`); without its
   weights both are ``null`` with the reason, never a number from another network. The labelled
   proxy :func:`sim2real.metrics.realism.proxy_colour_texture_distance` is always reported
-  (it is *not* FID). **Dice**: a :class:`~sim2real.metrics.segmenter.LiverUNet` is trained on the
-  labelled real images (``labels/NAME.png`` beside ``images/NAME.png``: uint8 class index,
-  0 = liver, 255 = background) at ``seg_height x seg_width`` for ``seg_iterations`` steps and
-  predicts liver on the translated views; the ground truth is the views' simulated liver pixels
-  (``GBuffer.class_index() == 0``). For context the same segmenter is also scored on the
-  untranslated reference renderings (``dice_a_ref``) and on its own training images
-  (``dice_real_train``, a fit check, not held out).
+  (it is *not* FID). **Dice** (:mod:`sim2real.inference.dice`): ``seg_seeds`` liver U-Nets,
+  trained on the labelled real images (``labels/NAME.png`` beside ``images/NAME.png``: uint8 class
+  index, 0 = liver, 255 = background) less a held-out share, each until its held-out Dice
+  converges, and cached per real folder; the Dice of a set of frames is their mean, or ``null``
+  ("unstable") when the seeds disagree by more than ``seg_max_spread``. The ground truth is the
+  views' simulated liver pixels (``GBuffer.class_index() == 0``).
 * **Temporal consistency**, per scene on a trajectory (a given file, or a generated one of
-  ``frames`` frames at the training size): OF error between the geometric flow
-  (:func:`sim2real.render.warp.flow`, visible pixels only) and Farnebäck flow on consecutive
-  translated frames; ORB-k accuracy and correct matches per pair for k = 1..``orb_max_k``
-  (ORB-1/5/10 are the paper's); the revisit protocol (1..T, T..1) for ORB-1/5/10 and OF. The
-  model is time-independent, so the backward half of the extended sequence reuses the forward
-  frames (a method that depends on earlier frames would translate it). Pooled over scenes:
-  ORB sums matches over all pairs, OF averages over all pairs.
+  ``frames`` frames at the training size, within the motion budget of
+  :func:`~sim2real.scene.trajectory.make_trajectory`; its measured motion is reported): OF error
+  (paper) and end-point error between the geometric flow (:func:`sim2real.render.warp.flow`,
+  visible pixels only) and Farnebäck flow of consecutive frames, both also against the ceiling's
+  Farnebäck flow; ORB-k accuracy and correct matches per pair for k = 1..``orb_max_k`` with ORB
+  settings for the frame size (:func:`~sim2real.metrics.consistency.orb_settings_for`); the
+  revisit protocol (1..T, T..1) for ORB-1/5/10 and OF. The model is time-independent, so the
+  backward half of the extended sequence reuses the forward frames (a method that depends on
+  earlier frames would translate it). Pooled over scenes: ORB sums matches over all pairs, OF
+  averages over all pairs.
+* **Rows** (:mod:`sim2real.inference.rows`): every metric is computed for the model, the
+  **ceiling**, the **floor** (:mod:`sim2real.inference.anchors`) and a_ref on the very same views
+  and paths, with the model's position between floor (0) and ceiling (1).
 
 Every key of ``metrics.json`` is always present; a value that cannot be computed is ``null``
 and ``reasons`` says why (docs/formats.md, "Evaluation").
@@ -43,7 +48,7 @@ import numpy as np
 
 from sim2real.errors import UserError
 from sim2real.inference.realset import find_real, fit_image, to_nchw
-from sim2real.inference.rows import PAPER_KS, ROWS, pool_orb, pool_rows, positions, scalars  # noqa: F401 (pool_orb: re-export)
+from sim2real.inference.rows import PAPER_KS, ROWS, pool_rows, positions, scalars
 
 FORMAT = "sim2real-evaluation/2"
 

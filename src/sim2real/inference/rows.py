@@ -16,9 +16,10 @@ from typing import Sequence
 
 import numpy as np
 
+from sim2real.metrics.consistency import PAPER_ORB_KS as PAPER_KS
+
 ROWS = ("model", "ceiling", "floor", "a_ref")
 MIN_GAP = 0.05
-PAPER_KS = (1, 5, 10)
 
 
 def sequence_row(frames: Sequence[np.ndarray], points, masks, flows, valids, ks, threshold_mm: float, orb,

@@ -23,11 +23,10 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from sim2real.metrics.consistency import PAPER_ORB_KS as OVERLAP_KS  # overlaps at the ORB-k offsets
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.warp import correspondences
 from sim2real.scene.camera import pixel_centres
-
-OVERLAP_KS = (1, 5, 10)
 
 
 def pair_flow_px(gi: GBuffer, gj: GBuffer) -> tuple[float, float]:
