@@ -52,10 +52,10 @@ def anchor_rates(frames: int) -> dict:
     return out
 
 
-def eval_time(run: str, scenes: list[str], real: str, extra: list[str]) -> float:
+def eval_time(run: str, scenes: list[str], real: str, extra: list[str], keep: str | None = None) -> float:
     with tempfile.TemporaryDirectory() as d:
         cmd = [sys.executable, "-m", "sim2real.cli.main", "evaluate", run, "--scenes", *scenes, "--real", real,
-               "--out", str(Path(d) / "e"), "--no-progress", "--views", "32", *extra]
+               "--out", keep or str(Path(d) / "e"), "--no-progress", "--views", "32", *extra]
         t0 = time.perf_counter()
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
         return time.perf_counter() - t0
@@ -67,13 +67,17 @@ def main() -> None:
     p.add_argument("--run")
     p.add_argument("--scenes", nargs="+")
     p.add_argument("--real")
+    p.add_argument("--trajectory", help="the demo's trajectory file (default: a generated path)")
+    p.add_argument("--keep", help="write the calibrated evaluation here (a new folder)")
     args = p.parse_args()
     res = {"anchors": anchor_rates(args.frames)}
     if args.run:
         # the segmenter cache is warm after the first call: time both with it warm
-        eval_time(args.run, args.scenes, args.real, ["--no-anchors"])
-        res["evaluate_s"] = {"with_anchors": eval_time(args.run, args.scenes, args.real, []),
-                             "without_anchors": eval_time(args.run, args.scenes, args.real, ["--no-anchors"])}
+        traj = ["--trajectory", args.trajectory] if args.trajectory else []
+        first = eval_time(args.run, args.scenes, args.real, ["--no-anchors", *traj])
+        res["evaluate_s"] = {"with_anchors": eval_time(args.run, args.scenes, args.real, traj, args.keep),
+                             "without_anchors": eval_time(args.run, args.scenes, args.real, ["--no-anchors", *traj]),
+                             "first_call_training_the_segmenters": first}
         res["evaluate_s"]["ratio"] = res["evaluate_s"]["with_anchors"] / res["evaluate_s"]["without_anchors"]
     print(json.dumps(res, indent=2))
 

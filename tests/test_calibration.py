@@ -110,3 +110,31 @@ def test_trajectory_side_file_and_legacy_path(demo_scene, tmp_path):
     # the old path is still there, and it is the fast one (a stress test)
     assert fast.motion["flow_frac_per_frame_median"] > 2 * traj.motion["flow_frac_per_frame_median"]
     assert len(PAPER_KS) == 3
+
+
+def test_dice_is_stable_over_segmenter_seeds_and_cached(demo_scene, tmp_path):
+    """Three segmenters trained to convergence agree within 0.05 on the ceiling frames, and a
+    second evaluation of the same real folder loads them from the cache."""
+    from sim2real.inference.dice import dice_of, segmenters
+    from sim2real.inference.evaluate import EvalSettings, find_real
+    from sim2real.inference.realset import fit_image
+    from sim2real.render.realdomain import make_real_domain
+    from sim2real.scene.trajectory import sample_poses
+
+    scene, caster = demo_scene
+    real_dirs = [generate_scene(1000 + k).save(tmp_path / f"real_{k}") for k in range(2)]
+    make_real_domain(real_dirs, tmp_path / "real", images=40, height=64, width=128, seed=0, workers=1, progress=False)
+    s = EvalSettings()  # the defaults: 32x64, at most 600 steps
+    labelled = find_real(tmp_path / "real").labelled
+    models, info = segmenters(labelled, s, "cpu", progress=False, say=lambda m: None)
+    assert info["n_train"] == 32 and info["n_held_out"] == 8
+    assert all(not m["cached"] for m in info["per_seed"]) and info["held_out_dice"]["mean"] > 0.8
+    anchors = Anchors(scene, seed=0)
+    gbs = [caster.render(c) for c in sample_poses(caster, 12, 64, 128, 75.0, seed=5)]
+    frames = [anchors.ceiling(g, t) for t, g in enumerate(gbs)]
+    gt = np.stack([fit_image((g.class_index() == 0).astype(np.uint8), 32, 64, nearest=True).astype(bool) for g in gbs])
+    d = dice_of(models, frames, gt, s)
+    assert d["stable"] and d["spread"] <= 0.05 and d["value"] > 0.6, d
+    again, info2 = segmenters(labelled, s, "cpu", progress=False, say=lambda m: None)
+    assert all(m["cached"] for m in info2["per_seed"])
+    assert dice_of(again, frames, gt, s)["per_seed"] == d["per_seed"]

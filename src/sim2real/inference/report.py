@@ -129,6 +129,14 @@ def _orb_cell(e: dict) -> str:
     return f"{acc} ({e['mean_correct']:.1f})"
 
 
+def _dice_row(m: dict, row: str, label: str, note: str) -> list[str]:
+    d = m["dice_info"].get("rows", {}).get(row)
+    if d is None:
+        return [label, "n/a", m["reasons"]["dice"] or "not computed"]
+    spread = "" if d["spread"] is None else f" (seeds {', '.join(f'{v:.3f}' for v in d['per_seed'])})"
+    return [label, _num(d["value"]), (d["reason"] or note) + spread]
+
+
 def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
     """The report as neutral blocks: ('h', level, text) ('p', text) ('table', header, rows)
     ('plot', file, svg, caption) ('img', caption, rel) ('pre', text)."""
@@ -151,14 +159,16 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
     rows = [
         ["FID", _num(m["fid"]), r["fid"] or f"{fk['n_gen']} generated vs {fk['n_real']} real images, FID Inception weights {fk['weights']}"],
         ["KID (mean ± std)", kid, r["fid"] or f"{fk['kid_subsets']} subsets of {fk['kid_subset_size']}"],
-        ["Dice, translated views", _num(m["dice"]), r["dice"] or
-         f"liver U-Net trained on {m['dice_info']['n_train']} labelled real images, evaluated on {m['dice_info']['n_eval']} views"],
-        ["Dice, reference rendering a_ref (untranslated)", _num(m["dice_a_ref"]), r["dice"] or "the same segmenter on the simulated input"],
-        ["Dice, ceiling (the stand-in on the simulated views)", _num(m.get("dice_ceiling")), r["dice"] or
-         "real look, simulated labels"],
+        _dice_row(m, "model", "Dice, translated views",
+                  f"mean over {m['dice_info'].get('seeds', 1)} liver U-Nets trained on {m['dice_info']['n_train']} labelled "
+                  f"real images, evaluated on {m['dice_info']['n_eval']} views"),
+        _dice_row(m, "a_ref", "Dice, reference rendering a_ref (untranslated)", "the same segmenters on the simulated input"),
+        _dice_row(m, "ceiling", "Dice, ceiling (the stand-in on the simulated views)", "real look, simulated labels"),
         ["Dice, held-out real images", _num(m.get("dice_real_held_out")),
-         f"{m['dice_info'].get('n_held_out', 0)} images not trained on"],
-        ["Dice, its own real training images (fit check)", _num(m["dice_real_train"]), r["dice"] or "not held out"],
+         r["dice"] if not m["dice_info"].get("held_out_dice") else
+         (m["dice_info"]["held_out_dice"]["reason"] or f"{m['dice_info'].get('n_held_out', 0)} images not trained on")],
+        ["Dice, its own real training images (fit check)", _num(m["dice_real_train"]),
+         (r["dice"] if m["dice_real_train"] is None else "not held out")],
         ["proxy colour+texture distance (**not FID**)", _num(m["proxy"]["proxy_colour_texture_distance"]),
          f"colour {m['proxy']['proxy_colour_distance']:.4f} + texture {m['proxy']['proxy_texture_distance']:.4f}; "
          f"a cheap stand-in, 0 for identical statistics"],
