@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -42,13 +43,23 @@ def _liver_targets(caster) -> tuple[np.ndarray, int]:
 
 def sample_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed: int, max_tries: int = 200) -> list[Camera]:
     """``n`` random training views of ``caster.scene`` (see module docstring)."""
+    return list(iter_poses(caster, n, height, width, fov_x_deg, seed, max_tries))
+
+
+def iter_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed: int,
+               max_tries: int = 200) -> Iterator[Camera]:
+    """The cameras of :func:`sample_poses`, one at a time (a renderer draws them as it goes).
+    The arguments are checked now, not at the first camera."""
     if n < 1:
         raise UserError(f"the number of views must be at least 1, got {n}")
-    scene = caster.scene
     K = intrinsics_from_fov(width, height, fov_x_deg)
-    rng = np.random.default_rng(seed)
+    return _poses(caster, n, K, height, width, np.random.default_rng(seed), max_tries)
+
+
+def _poses(caster, n: int, K: np.ndarray, height: int, width: int, rng: np.random.Generator,
+           max_tries: int) -> Iterator[Camera]:
+    scene = caster.scene
     targets, liver = _liver_targets(caster)
-    cams: list[Camera] = []
     for _ in range(n):
         for _try in range(max_tries):
             eye = scene.camera_region.sample(rng, 1)[0]
@@ -60,11 +71,10 @@ def sample_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed
             if not ok.any():
                 continue
             target = cand[np.nonzero(ok)[0][0]]
-            cams.append(Camera(K, look_at(eye, target, scene.up), height, width))
+            yield Camera(K, look_at(eye, target, scene.up), height, width)
             break
         else:
             raise UserError(f"could not place a camera in scene '{scene.name}' that sees the liver; check its camera region")
-    return cams
 
 
 @dataclass
