@@ -1,8 +1,8 @@
-"""Throughput of the stand-in real domain (sim2real.render.realdomain) at 256x512; prints JSON.
+"""Throughput of the stand-in real domain (sim2real.render.realdomain, data.realdomain_writer) at 256x512; prints JSON.
 
 * ``frames_per_s_1proc``: one process, warm (materials built), ray casting + shading + PNG
   writing of image and label, median over frames;
-* ``frames_per_s_{1,2}proc_pool``: the process pool of ``make_real_domain`` with warm workers,
+* ``frames_per_s_2proc_pool``: the process pool of ``make_real_domain`` with 2 warm workers,
   median over ``--repeats`` batches of ``--frames`` frames;
 * ``frames_per_s_end_to_end_2proc``: one whole ``make_real_domain`` call (pool start, per-worker
   material building, pose sampling, writing) for ``--e2e-images`` images.
@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import os
 import platform
 import statistics
@@ -22,6 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from sim2real.data.realdomain_writer import WorkerScenes, render_job
+from sim2real.pool import WorkerPool
 from sim2real.render import realdomain as rd
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.procedural import generate_scene
@@ -55,12 +56,12 @@ def main() -> None:
         build_s = time.perf_counter() - t
 
         jobs = [(0, cam, i, str(tmp / "f" / f"{i}.png"), str(tmp / "l" / f"{i}.png")) for i, cam in enumerate(cams)]
-        rd._init_worker([scene_dir], [app.to_json()], opt.to_json())
-        rd._WORKER["scenes"][0] = (caster, material)
+        state = WorkerScenes([scene_dir], [app.to_json()], opt.to_json())
+        state.scenes[0] = (caster, material)
         single, ray, shade = [], [], []
         for job in jobs:
             t = time.perf_counter()
-            rd._render_job(job)
+            render_job(state, job)
             single.append(time.perf_counter() - t)
             t = time.perf_counter()
             g = caster.render(job[1])
@@ -82,17 +83,15 @@ def main() -> None:
             "median_ms_per_frame_1proc": 1e3 * statistics.median(single),
             "frames_per_s_1proc": 1.0 / statistics.median(single),
         }
-        ctx = mp.get_context("spawn")
-        initargs = ([scene_dir], [app.to_json()], opt.to_json())
-        for workers in (1, 2):
-            with ctx.Pool(workers, initializer=rd._init_worker, initargs=initargs) as pool:
-                pool.map(rd._render_job, jobs[:workers], chunksize=1)  # build materials in every worker
-                rates = []
-                for _ in range(args.repeats):
-                    t = time.perf_counter()
-                    pool.map(rd._render_job, jobs, chunksize=1)
-                    rates.append(len(jobs) / (time.perf_counter() - t))
-            result[f"frames_per_s_{workers}proc_pool"] = statistics.median(rates)
+        setup_args = ([scene_dir], [app.to_json()], opt.to_json())
+        with WorkerPool(2, WorkerScenes, setup_args) as pool:
+            list(pool.imap(render_job, jobs[:2]))  # build the materials in every worker
+            rates = []
+            for _ in range(args.repeats):
+                t = time.perf_counter()
+                list(pool.imap(render_job, jobs))
+                rates.append(len(jobs) / (time.perf_counter() - t))
+        result["frames_per_s_2proc_pool"] = statistics.median(rates)
         t = time.perf_counter()
         rd.make_real_domain([scene_dir], tmp / "e2e", images=args.e2e_images, seed=0, height=h, width=w,
                             workers=2, progress=False)

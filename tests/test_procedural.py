@@ -70,3 +70,23 @@ def test_trajectory_is_smooth_and_round_trips(tmp_path, procedural_caster):
     for c1, c2 in zip(back.cameras, traj.cameras):
         np.testing.assert_allclose(c1.world_to_camera, c2.world_to_camera, atol=1e-6)
         np.testing.assert_allclose(c1.K, c2.K)
+
+
+def test_lazy_poses_are_the_sampled_poses_and_check_their_arguments_at_once(procedural_caster):
+    import pytest
+
+    from sim2real.errors import UserError
+    from sim2real.scene.trajectory import iter_poses
+
+    eager = sample_poses(procedural_caster, 5, 24, 40, 75, seed=8)
+    lazy = iter_poses(procedural_caster, 5, 24, 40, 75, seed=8)
+    assert not isinstance(lazy, list)
+    lazy = list(lazy)
+    assert len(lazy) == 5
+    for a, b in zip(eager, lazy):
+        np.testing.assert_array_equal(a.world_to_camera, b.world_to_camera)
+    assert len({c.position.tobytes() for c in lazy}) == 5
+    with pytest.raises(UserError, match="at least 1"):
+        iter_poses(procedural_caster, 0, 24, 40, 75, seed=8)  # raised by the call, not by a first next()
+    with pytest.raises(UserError, match="field of view"):
+        iter_poses(procedural_caster, 2, 24, 40, 200, seed=8)

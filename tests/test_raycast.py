@@ -75,10 +75,46 @@ def test_gbuffer_save_load_round_trip(tmp_path, view):
     back = GBuffer.load(tmp_path / "v.npz")
     for k in ("K", "world_to_camera", "depth", "distance", "normal", "object_id", "points"):
         np.testing.assert_array_equal(getattr(back, k), getattr(g, k))
+        # bit for bit, dtype and shape kept (float32 points / depth are not rounded or widened)
+        a, b = getattr(back, k), getattr(g, k)
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), k
+    assert back.points.dtype == np.float32 and back.depth.dtype == np.float32
     assert back.classes == ("liver", "fat")
     # class_index maps object ids to the fixed class order (fat is class 1, liver 0)
     assert set(np.unique(back.class_index())) <= {0, 1}
     assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+
+
+def test_view_files_are_stored_uncompressed_and_old_compressed_files_still_load(tmp_path, view):
+    import zipfile
+
+    _, g = view
+    g.save(tmp_path / "new.npz")
+    with zipfile.ZipFile(tmp_path / "new.npz") as z:
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_STORED}
+    # The writer of earlier versions: numpy's savez_compressed of the same keys.
+    np.savez_compressed(tmp_path / "old.npz", K=g.K, world_to_camera=g.world_to_camera, depth=g.depth,
+                        distance=g.distance, normal=g.normal, object_id=g.object_id, points=g.points,
+                        classes=np.array(g.classes, dtype=str))
+    old = GBuffer.load(tmp_path / "old.npz")
+    assert old.points.tobytes() == g.points.tobytes() and old.depth.tobytes() == g.depth.tobytes()
+    assert old.classes == g.classes
+
+
+def test_caster_from_geometry_renders_like_the_scene(procedural_scene, procedural_caster):
+    from sim2real.render.raycast import SceneGeometry
+    from sim2real.scene.trajectory import sample_poses
+
+    geometry = SceneGeometry.of(procedural_scene)
+    assert "trimesh" not in {type(a).__module__.split(".")[0] for a in geometry.vertices}
+    bare = RayCaster(geometry)
+    assert bare.scene is None and bare.classes == procedural_scene.classes
+    for cam in sample_poses(procedural_caster, 2, 24, 40, 75, seed=3):
+        a, b = bare.render(cam), procedural_caster.render(cam)
+        for k in ("depth", "normal", "object_id", "points"):
+            np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
+    pts = procedural_scene.camera_region.sample(np.random.default_rng(0), 32)
+    np.testing.assert_array_equal(bare.free_space(pts), procedural_caster.free_space(pts))
 
 
 def test_inside_tests(analytic_scene):

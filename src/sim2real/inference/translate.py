@@ -331,7 +331,7 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
 
     from sim2real.fileio import atomic_write_image, atomic_write_json, prepare_output_dir
     from sim2real.inference.export import export_ground_truth
-    from sim2real.inference.frames import LazyGBuffers, chunked, iter_gbuffers, iter_view_files, save_scratch
+    from sim2real.inference.frames import LazyGBuffers, chunked, iter_gbuffers, iter_view_files
     from sim2real.inference.video import _rate, write_video
 
     if batch < 1:
@@ -360,7 +360,7 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
             for chunk in chunked(gbuffers, batch):
                 if source.cameras is not None:
                     for k, g in enumerate(chunk):
-                        save_scratch(g, gt_paths[i + k])
+                        g.save(gt_paths[i + k], durable=False)
                 for f in model.translate_gbuffers(source.scene_name, chunk, batch):
                     if not size:
                         size.append(f.shape[:2])

@@ -76,18 +76,12 @@ class GBuffer:
         c = self.class_index()
         return np.where(c >= 0, c, LABEL_BACKGROUND).astype(np.uint8)
 
-    def save(self, path: str | os.PathLike) -> None:
-        atomic_save_npz(
-            path,
-            K=self.K,
-            world_to_camera=self.world_to_camera,
-            depth=self.depth,
-            distance=self.distance,
-            normal=self.normal,
-            object_id=self.object_id,
-            points=self.points,
-            classes=np.array(self.classes, dtype=str),
-        )
+    def save(self, path: str | os.PathLike, durable: bool = True) -> None:
+        """Uncompressed ``.npz`` of every key, arrays bit for bit as they are (docs/formats.md),
+        written under a temporary name and renamed; ``durable=False`` skips the fsync (scratch
+        files). :meth:`load` also reads the compressed files of earlier versions."""
+        arrays = {k: getattr(self, k) for k in KEYS if k != "classes"}
+        atomic_save_npz(path, {**arrays, "classes": np.array(self.classes, dtype=str)}, durable=durable)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "GBuffer":

@@ -3,23 +3,27 @@
 One Embree geometry per scene object, so the geometry id is the object id. All rays of a
 view go to Embree in one call; nothing loops over pixels in Python, and trimesh's
 pure-numpy ray caster is never used (it took 57 s for 2,000 rays here).
-Embree runs one core per process: :func:`render_views` uses a process pool for many views.
+Embree runs one core per process: :func:`render_views` uses a process pool for many views. The
+workers get the scene as a :class:`SceneGeometry` (plain arrays), so they never import trimesh
+(1.2 s of a worker's start here) nor load the meshes again.
 """
 
 from __future__ import annotations
 
 import functools
 import os
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 import numpy as np
 
 from sim2real.errors import UserError
 from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.camera import Camera, pixel_centres
-from sim2real.scene.scene import Scene
-from sim2real.threads import single_thread_worker
+
+if TYPE_CHECKING:
+    from sim2real.scene.scene import Scene
 
 _MISS = 1e30
 
@@ -48,27 +52,56 @@ _DIRS = _DIRS @ np.array([[0.99, -0.1, 0.05], [0.1, 0.99, -0.03], [-0.05, 0.03, 
 _DIRS /= np.linalg.norm(_DIRS, axis=1, keepdims=True)
 
 
-class RayCaster:
-    """Casts rays against a :class:`Scene`. Build once per process, reuse for many views."""
+@dataclass(frozen=True)
+class SceneGeometry:
+    """What the ray caster needs of a scene, as plain arrays (cheap to send to worker processes).
 
-    def __init__(self, scene: Scene):
+    Per object, in object-id order: ``vertices`` (V, 3) float64 mm, ``faces`` (F, 3) int64,
+    ``face_normals`` (F, 3) float32 (outward unit normals) and ``vertex_normals`` (V, 3) float32
+    (area-weighted, unit)."""
+
+    classes: tuple[str, ...]
+    vertices: tuple[np.ndarray, ...]
+    faces: tuple[np.ndarray, ...]
+    face_normals: tuple[np.ndarray, ...]
+    vertex_normals: tuple[np.ndarray, ...]
+
+    @classmethod
+    def of(cls, scene: "Scene") -> "SceneGeometry":
+        verts = tuple(np.asarray(o.mesh.vertices, dtype=np.float64) for o in scene.objects)
+        faces = tuple(np.asarray(o.mesh.faces, dtype=np.int64) for o in scene.objects)
+        return cls(
+            classes=tuple(scene.classes),
+            vertices=verts,
+            faces=faces,
+            face_normals=tuple(np.asarray(o.mesh.face_normals, np.float32) for o in scene.objects),
+            vertex_normals=tuple(_smooth_normals(v, f).astype(np.float32) for v, f in zip(verts, faces)),
+        )
+
+
+class RayCaster:
+    """Casts rays against a :class:`Scene` (or its :class:`SceneGeometry`: then ``scene`` is None).
+    Build once per process, reuse for many views."""
+
+    def __init__(self, scene: "Scene | SceneGeometry"):
         rtcore_scene, TriangleMesh = _embree()
-        self.scene = scene
+        geometry = scene if isinstance(scene, SceneGeometry) else SceneGeometry.of(scene)
+        self.scene = None if scene is geometry else scene
+        self.geometry = geometry
+        self.classes = geometry.classes
         self._embree = rtcore_scene.EmbreeScene()
-        faces_all, normals_all, face_offset, n_verts = [], [], [], 0
-        for obj in scene.objects:
-            verts = np.asarray(obj.mesh.vertices, dtype=np.float64)
-            faces = np.asarray(obj.mesh.faces, dtype=np.int64)
+        faces_all, face_offset, n_verts, n_faces = [], [], 0, 0
+        for verts, faces in zip(geometry.vertices, geometry.faces):
             TriangleMesh(self._embree, verts[faces].astype(np.float32))
-            face_offset.append(sum(len(f) for f in faces_all))
+            face_offset.append(n_faces)
             faces_all.append(faces + n_verts)
-            normals_all.append(_smooth_normals(verts, faces).astype(np.float32))
             n_verts += len(verts)
+            n_faces += len(faces)
         # All objects' faces and vertex normals in one table; object k's faces start at offset[k].
         self._all_faces = np.concatenate(faces_all)
-        self._all_normals = np.concatenate(normals_all)
+        self._all_normals = np.concatenate(geometry.vertex_normals)
         self._face_offset = np.array(face_offset, dtype=np.int64)
-        self._face_normals = np.concatenate([np.asarray(o.mesh.face_normals, np.float32) for o in scene.objects])
+        self._face_normals = np.concatenate(geometry.face_normals)
         # Embree builds its BVH on the first query: do it now, not inside the first view.
         self.intersect(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
 
@@ -127,7 +160,7 @@ class RayCaster:
             normal=n.astype(np.float32).reshape(h, w, 3),
             object_id=obj.reshape(h, w).astype(np.int16),
             points=points.reshape(h, w, 3),
-            classes=self.scene.classes,
+            classes=self.classes,
         )
 
     # --- inside / outside ----------------------------------------------------------------------
@@ -144,7 +177,7 @@ class RayCaster:
         hits = self.intersect(origins, dirs)
         inside = np.where(hits["facing"] > 0, hits["object"], -1).reshape(n, len(_DIRS))
         out = np.full(n, -1, dtype=np.int64)
-        for k in range(len(self.scene.objects)):
+        for k in range(len(self.classes)):
             votes = (inside == k).sum(axis=1)
             out[votes > len(_DIRS) // 2] = k
         return out
@@ -160,7 +193,7 @@ class RayCaster:
     def free_space(self, points: np.ndarray) -> np.ndarray:
         """True where a camera may be: inside the cavity and outside every organ."""
         ok = self.containing_object(points) < 0
-        if self.scene.objects_of("abdominal_wall"):
+        if "abdominal_wall" in self.classes:
             ok &= self.enclosed(points)
         return ok
 
@@ -199,7 +232,7 @@ def _smooth_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return vn
 
 
-def check_camera_region(scene: Scene, caster: RayCaster | None = None, samples: int = 256, seed: int = 0) -> None:
+def check_camera_region(scene: "Scene", caster: RayCaster | None = None, samples: int = 256, seed: int = 0) -> None:
     """Refuse a camera region that lies inside an organ or outside the abdominal wall."""
     caster = caster or RayCaster(scene)
     pts = scene.camera_region.sample(np.random.default_rng(seed), samples)
@@ -218,52 +251,68 @@ def check_camera_region(scene: Scene, caster: RayCaster | None = None, samples: 
 
 # --- many views, both cores ----------------------------------------------------------------
 
-_WORKER: dict = {}
+
+def caster_setup(source: "SceneGeometry | str | os.PathLike") -> RayCaster:
+    """A worker's ray caster (:class:`~sim2real.pool.WorkerPool` setup): from a
+    :class:`SceneGeometry`, or from a scene folder that the worker loads itself."""
+    if isinstance(source, SceneGeometry):
+        return RayCaster(source)
+    from sim2real.scene.scene import Scene
+
+    return RayCaster(Scene.load(source))
 
 
-def _init_worker(scene_dir: str) -> None:
-    single_thread_worker()
-    _WORKER["caster"] = RayCaster(Scene.load(scene_dir))
+def render_camera(caster: RayCaster, camera: Camera) -> GBuffer:
+    """The G-buffer of one camera (a :class:`~sim2real.pool.WorkerPool` job)."""
+    return caster.render(camera)
 
 
-def _render_one(job: tuple[Camera, str, bool]) -> str:
-    from sim2real.render.reference import save_preview
-
+def _render_to_file(caster: RayCaster, job: tuple[Camera, str, bool]) -> str:
     camera, path, preview = job
-    g = _WORKER["caster"].render(camera)
-    g.save(path)
+    g = caster.render(camera)
+    g.save(path)  # in the worker: only the path goes back through the pool
     if preview:
+        from sim2real.render.reference import save_preview
+
         save_preview(g, Path(path).with_suffix(".png"))
     return path
 
 
 def render_views(
-    scene_dir: str | os.PathLike,
-    cameras: Sequence[Camera],
+    scene: "Scene | str | os.PathLike",
+    cameras: Iterable[Camera],
     paths: Sequence[str | os.PathLike],
     workers: int | None = None,
     preview: bool = False,
     progress: bool = True,
+    caster: RayCaster | None = None,
 ) -> list[str]:
-    """Render ``cameras`` of the scene at ``scene_dir`` to ``paths`` (.npz) with a process pool."""
-    import multiprocessing as mp
-
+    """Render ``cameras`` of ``scene`` (a :class:`Scene` or its folder) to ``paths`` (.npz), in a
+    process pool of ``workers`` (default: the usable cores, at most one per view) that starts
+    before the first camera is drawn. ``cameras`` may be lazy (e.g.
+    :func:`sim2real.scene.trajectory.iter_poses`): it is drawn as fast as the workers render.
+    ``caster`` (of the same scene) is reused in-process and gives the workers its geometry."""
     from tqdm import tqdm
 
-    workers = workers or min(len(cameras), os.cpu_count() or 1)
-    jobs = [(c, str(p), preview) for c, p in zip(cameras, paths)]
-    bar = tqdm(total=len(jobs), desc="render", unit="view", disable=not progress)
-    done: list[str] = []
-    if workers <= 1:
-        _init_worker(str(scene_dir))
-        for job in jobs:
-            done.append(_render_one(job))
-            bar.update()
+    from sim2real.pool import WorkerPool
+    from sim2real.threads import usable_cores
+
+    if caster is None:
+        if not isinstance(scene, (str, os.PathLike)):
+            geometry = SceneGeometry.of(scene)
+        else:
+            from sim2real.scene.scene import Scene
+
+            geometry = SceneGeometry.of(Scene.load(scene))
     else:
-        ctx = mp.get_context("spawn")
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(str(scene_dir),)) as pool:
-            for path in pool.imap(_render_one, jobs, chunksize=1):
-                done.append(path)
-                bar.update()
-    bar.close()
+        geometry = caster.geometry
+    paths = [str(p) for p in paths]
+    workers = workers or min(len(paths), usable_cores())
+    done: list[str] = []
+    with tqdm(total=len(paths), desc="render", unit="view", disable=not progress) as bar, \
+            WorkerPool(workers, caster_setup, (geometry,), state=caster) as pool:
+        jobs = ((cam, path, preview) for cam, path in zip(cameras, paths))
+        for path in pool.imap(_render_to_file, jobs):
+            done.append(path)
+            bar.update()
     return done

@@ -38,7 +38,10 @@ def class_albedo(classes: tuple[str, ...] | list[str]) -> np.ndarray:
     return np.array([ALBEDO[c] for c in classes], dtype=np.float32)
 
 
-def light_falloff(distance: np.ndarray) -> np.ndarray:
+def paper_light_falloff(distance: np.ndarray) -> np.ndarray:
+    """The paper's L(d) of a_ref (Eq. 2, authors' constants), ``distance`` Euclidean in mm, clamped
+    at 100 mm. Not the stand-in scope's light
+    (:func:`sim2real.render.realdomain.scope_light_falloff`)."""
     d = np.minimum(distance, DISTANCE_CLAMP_MM)
     a, b, c = FALLOFF
     return 1.0 / (a * d * d + b * d + c)
@@ -55,7 +58,7 @@ def reference_rendering(g: GBuffer) -> np.ndarray:
     """a_ref of a view as float32 (H, W, 3) RGB in [0, 1]."""
     albedo = np.concatenate([class_albedo(g.classes), np.zeros((1, 3), np.float32)])[g.object_id]
     diffuse = np.clip(np.einsum("hwc,hwc->hw", g.normal, view_directions(g)), 0.0, 1.0)
-    shade = (0.9 * diffuse + 0.1) * light_falloff(g.distance)
+    shade = (0.9 * diffuse + 0.1) * paper_light_falloff(g.distance)
     out = albedo * shade[..., None]
     out[~g.mask] = 0.0
     return np.clip(out, 0.0, 1.0).astype(np.float32)

@@ -45,11 +45,16 @@ FOV_RANGE_DEG = (1.0, 170.0)
 def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> np.ndarray:
     """Square-pixel pinhole K with the principal point at the image centre."""
     check_size(height, width)
+    check_fov(fov_x_deg)
+    f = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2.0)
+    return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+
+
+def check_fov(fov_x_deg: float) -> None:
+    """Refuse a horizontal field of view outside :data:`FOV_RANGE_DEG`."""
     lo, hi = FOV_RANGE_DEG
     if not lo <= fov_x_deg <= hi:
         raise UserError(f"field of view must be in [{lo:g}, {hi:g}] degrees, got {fov_x_deg}")
-    f = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2.0)
-    return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
 
 
 def check_size(height: int, width: int) -> None:

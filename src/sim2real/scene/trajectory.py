@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_text
-from sim2real.scene.camera import Camera, intrinsics_from_fov, invert_rigid, look_at, quaternion_to_rotation, rotation_to_quaternion
+from sim2real.scene.camera import Camera, intrinsics_from_fov, invert_rigid, look_at, rotation_to_quaternion
+from sim2real.scene.tum import read_tum
 
 
 def _liver_targets(caster) -> tuple[np.ndarray, int]:
@@ -42,13 +43,23 @@ def _liver_targets(caster) -> tuple[np.ndarray, int]:
 
 def sample_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed: int, max_tries: int = 200) -> list[Camera]:
     """``n`` random training views of ``caster.scene`` (see module docstring)."""
+    return list(iter_poses(caster, n, height, width, fov_x_deg, seed, max_tries))
+
+
+def iter_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed: int,
+               max_tries: int = 200) -> Iterator[Camera]:
+    """The cameras of :func:`sample_poses`, one at a time (a renderer draws them as it goes).
+    The arguments are checked now, not at the first camera."""
     if n < 1:
         raise UserError(f"the number of views must be at least 1, got {n}")
-    scene = caster.scene
     K = intrinsics_from_fov(width, height, fov_x_deg)
-    rng = np.random.default_rng(seed)
+    return _poses(caster, n, K, height, width, np.random.default_rng(seed), max_tries)
+
+
+def _poses(caster, n: int, K: np.ndarray, height: int, width: int, rng: np.random.Generator,
+           max_tries: int) -> Iterator[Camera]:
+    scene = caster.scene
     targets, liver = _liver_targets(caster)
-    cams: list[Camera] = []
     for _ in range(n):
         for _try in range(max_tries):
             eye = scene.camera_region.sample(rng, 1)[0]
@@ -60,11 +71,10 @@ def sample_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed
             if not ok.any():
                 continue
             target = cand[np.nonzero(ok)[0][0]]
-            cams.append(Camera(K, look_at(eye, target, scene.up), height, width))
+            yield Camera(K, look_at(eye, target, scene.up), height, width)
             break
         else:
             raise UserError(f"could not place a camera in scene '{scene.name}' that sees the liver; check its camera region")
-    return cams
 
 
 @dataclass
@@ -101,47 +111,23 @@ class Trajectory:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Trajectory":
-        path = Path(path)
-        try:
-            text = path.read_text()
-        except (OSError, UnicodeDecodeError) as e:
-            raise UserError(f"cannot read trajectory {path}: {e}") from None
+        comments, poses = read_tum(path, "trajectory")
         header: dict[str, list[float]] = {}
-        rows = []
-        for lineno, line in enumerate(text.splitlines(), 1):
-            line = line.strip()
-            if not line:
-                continue
-            if line.startswith("#"):
-                parts = line[1:].split()
-                if parts and parts[0] in ("width", "height", "K", "fps"):
-                    try:
-                        header[parts[0]] = [float(x) for x in parts[1:]]
-                    except ValueError:
-                        raise UserError(f"{path}:{lineno}: bad header line '{line}'") from None
-                continue
-            try:
-                vals = [float(x) for x in line.split()]
-            except ValueError:
-                vals = []
-            if len(vals) != 8 or not np.all(np.isfinite(vals)):
-                raise UserError(f"{path}:{lineno}: expected 8 numbers 'timestamp tx ty tz qx qy qz qw', got '{line}'")
-            if abs(np.linalg.norm(vals[4:]) - 1.0) > 1e-3:
-                raise UserError(f"{path}:{lineno}: quaternion is not of unit length")
-            rows.append(vals)
+        for lineno, line in comments:
+            parts = line[1:].split()
+            if parts and parts[0] in ("width", "height", "K", "fps"):
+                try:
+                    header[parts[0]] = [float(x) for x in parts[1:]]
+                except ValueError:
+                    raise UserError(f"{path}:{lineno}: bad header line '{line}'") from None
         for key, n in (("width", 1), ("height", 1), ("K", 9)):
             if key not in header or len(header[key]) != n:
                 raise UserError(f"{path}: header line '# {key}' is missing or malformed")
-        if not rows:
+        if not poses:
             raise UserError(f"{path}: trajectory has no poses")
         width, height = int(header["width"][0]), int(header["height"][0])
         K = np.array(header["K"]).reshape(3, 3)
-        cams = []
-        for r in rows:
-            c2w = np.eye(4)
-            c2w[:3, :3] = quaternion_to_rotation(r[4:])
-            c2w[:3, 3] = r[1:4]
-            cams.append(Camera(K, invert_rigid(c2w), height, width))
+        cams = [Camera(K, invert_rigid(c2w), height, width) for _, c2w in poses]
         fps = header.get("fps", [5.0])[0]
         motion = None
         side = side_file(path)
