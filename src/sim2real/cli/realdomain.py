@@ -13,17 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import non_negative_int, positive_float, positive_int
-
-
-def _float_at_least_zero(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'") from None
-    if not value >= 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'")
-    return value
+from sim2real.cli.args import non_negative_float, non_negative_int, positive_float, positive_int
 
 
 def _int(text: str) -> int:
@@ -50,8 +40,8 @@ def register(sub) -> None:
     p.add_argument("--width", type=positive_int, default=512)
     p.add_argument("--fov", type=positive_float, default=75.0, help="horizontal field of view, degrees")
     p.add_argument("--mask", action="store_true", help="black out the corners outside the endoscope's circle")
-    p.add_argument("--blur", type=_float_at_least_zero, default=0.6, help="Gaussian blur sigma in pixels (0 = none)")
-    p.add_argument("--noise", type=_float_at_least_zero, default=0.012, help="sensor noise sigma (0 = none)")
+    p.add_argument("--blur", type=non_negative_float, default=0.6, help="Gaussian blur sigma in pixels (0 = none)")
+    p.add_argument("--noise", type=non_negative_float, default=0.012, help="sensor noise sigma (0 = none)")
     p.add_argument("--workers", type=positive_int, default=None, help="processes (default: all cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
