@@ -65,6 +65,9 @@ def test_ceiling_as_model_is_position_one_and_blur_loses_against_the_ceiling(dem
     ks = (1, 5, 10)
     _, c_est = sequence_row(ceiling, pts, masks, flows, valids, ks, 1.0, orb, None)
     c_row, _ = sequence_row(ceiling, pts, masks, flows, valids, ks, 1.0, orb, c_est)
+    reused, _ = sequence_row(ceiling, pts, masks, flows, valids, ks, 1.0, orb, c_est, revisit=False)
+    assert reused["revisit"]["orb"] == c_row["revisit"]["orb"]  # the computed revisit pairs are the forward ones
+    assert reused["revisit"]["of_error"] == pytest.approx(c_row["revisit"]["of_error"])
     f_row, _ = sequence_row(floor, pts, masks, flows, valids, ks, 1.0, orb, c_est)
     m_row, _ = sequence_row(ceiling, pts, masks, flows, valids, ks, 1.0, orb, c_est)  # "a model" = the ceiling
     import cv2

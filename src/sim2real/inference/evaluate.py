@@ -382,7 +382,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
 def check_settings(s: EvalSettings) -> None:
     """Refuse settings outside their range (a :class:`UserError`)."""
     for name in ("views", "frames", "batch", "max_real", "seg_height", "seg_width", "seg_batch", "orb_features",
-                 "orb_max_k", "kid_subset_size", "kid_subsets", "samples"):
+                 "orb_max_k", "kid_subset_size", "kid_subsets", "samples", "seg_seeds", "seg_check_every"):
         if getattr(s, name) < (0 if name == "samples" else 1):
             raise UserError(f"evaluation setting {name} must be positive, got {getattr(s, name)}")
     if s.frames < 2:
@@ -391,6 +391,10 @@ def check_settings(s: EvalSettings) -> None:
         raise UserError(f"seg_iterations must be >= 0, got {s.seg_iterations}")
     if not s.threshold_mm > 0:
         raise UserError(f"threshold_mm must be positive, got {s.threshold_mm}")
+    if not 0 < s.seg_holdout < 1:
+        raise UserError(f"seg_holdout must be between 0 and 1, got {s.seg_holdout}")
+    if not s.seg_max_spread >= 0:
+        raise UserError(f"seg_max_spread must be >= 0, got {s.seg_max_spread}")
 
 
 def _safe(name: str) -> str:
@@ -440,7 +444,8 @@ def _sequence_metrics(model, scene: str, scene_dir: Path, cameras, caster, ancho
     rows, ceiling_est = {}, None
     for row in ("ceiling",) + tuple(r for r in rows_shown if r != "ceiling"):
         if row in frames:
-            rows[row], est = sequence_row(frames[row], points, masks, flows, valids, ks, s.threshold_mm, orb, ceiling_est)
+            rows[row], est = sequence_row(frames[row], points, masks, flows, valids, ks, s.threshold_mm, orb, ceiling_est,
+                                          revisit=row == "model")  # the anchors reuse their forward pairs
             if row == "ceiling":  # against its own flow the ceiling scores 0 by definition
                 ceiling_est = est
                 r = rows["ceiling"]

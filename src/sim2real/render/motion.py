@@ -52,7 +52,7 @@ class MotionMeter:
     last ``max(ks)`` G-buffers)."""
 
     def __init__(self, ks: Sequence[int] = OVERLAP_KS):
-        self.ks = tuple(int(k) for k in ks)
+        self.ks = tuple(sorted({1, *(int(k) for k in ks)}))  # k = 1 gives the flow per frame
         self.window: deque[GBuffer] = deque(maxlen=max(self.ks))
         self.flow_px: list[float] = []
         self.deg: list[float] = []
@@ -64,15 +64,11 @@ class MotionMeter:
         n = len(self.window)
         for k in self.ks:
             if k <= n:
-                prev = self.window[n - k]
-                fl, ov = pair_flow_px(prev, g)
+                fl, ov = pair_flow_px(self.window[n - k], g)
                 self.overlaps[k].append(ov)
                 if k == 1:
                     self.flow_px.append(fl)
-        if n >= 1 and 1 not in self.ks:
-            self.flow_px.append(pair_flow_px(self.window[-1], g)[0])
-        if n >= 1:
-            self.deg.append(rotation_deg(self.window[-1].world_to_camera, g.world_to_camera))
+                    self.deg.append(rotation_deg(self.window[-1].world_to_camera, g.world_to_camera))
         self.window.append(g)
 
     def summary(self) -> dict:

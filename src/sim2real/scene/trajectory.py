@@ -246,19 +246,17 @@ def _measure_cameras(cams: list[Camera]) -> list[Camera]:
 
 
 def measure_motion(caster, cameras: list[Camera]) -> dict:
-    """:func:`sim2real.render.motion.measure` of a path, ray cast at about 128 px width."""
+    """:func:`sim2real.render.motion.measure` of a path, ray cast at about 128 px width; pixel
+    figures are given at the cameras' own width."""
     from sim2real.render.motion import measure
 
-    m = measure(caster.render(c) for c in _measure_cameras(cameras))
-    m["width"] = cameras[0].width
-    m["flow_px_per_frame_median"] = m["flow_frac_per_frame_median"] * cameras[0].width
-    m["flow_px_per_frame"] = [round(x * cameras[0].width / _measure_width(cameras), 3) for x in m["flow_px_per_frame"]]
-    m["measured_at_width"] = _measure_width(cameras)
+    small = _measure_cameras(cameras)
+    m = measure(caster.render(c) for c in small)
+    scale = cameras[0].width / small[0].width
+    m.update(width=cameras[0].width, measured_at_width=small[0].width,
+             flow_px_per_frame_median=m["flow_px_per_frame_median"] * scale,
+             flow_px_per_frame=[round(x * scale, 3) for x in m["flow_px_per_frame"]])
     return m
-
-
-def _measure_width(cameras: list[Camera]) -> int:
-    return _measure_cameras(cameras[:1])[0].width
 
 
 def _timed_parameters(caster, eye_fn, look_fn, frames: int, K, height: int, width: int,
