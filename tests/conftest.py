@@ -35,6 +35,15 @@ def _private_cache(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def train_inputs(tmp_path_factory):
+    """(scene folder, real-image folder) for training commands: procedural scene 11, 4 images."""
+    from train_data import real_dir, scene_dir
+
+    base = tmp_path_factory.getbasetemp()
+    return scene_dir(base, 11), real_dir(base)
+
+
+@pytest.fixture(scope="module")
 def one_torch_thread():
     """torch on one thread for a module: 2 OpenMP threads on 2 shared, busy cores spin against
     each other (10x slower on the dev machine)."""

@@ -20,15 +20,8 @@ from sim2real.cli.main import main
 from sim2real.config import preset
 from sim2real.engine.checkpoint import load_checkpoint
 from sim2real.engine.runlock import LOCK_NAME
-from train_data import real_dir, scene_dir
 
 SRC = Path(__file__).resolve().parents[1] / "src"
-
-
-@pytest.fixture(scope="module")
-def inputs(tmp_path_factory):
-    base = tmp_path_factory.getbasetemp()
-    return scene_dir(base, 11), real_dir(base)
 
 
 def command(scenes, real, out, *extra):
@@ -38,9 +31,9 @@ def command(scenes, real, out, *extra):
 
 
 @pytest.fixture(scope="module")
-def base_run(inputs, tmp_path_factory):
+def base_run(train_inputs, tmp_path_factory):
     out = tmp_path_factory.mktemp("resume") / "run"
-    assert main(command(*inputs, out, "--iterations", "2")) == 0
+    assert main(command(*train_inputs, out, "--iterations", "2")) == 0
     return out
 
 
@@ -74,8 +67,8 @@ def steps_logged(out: Path) -> list[int]:
     return [json.loads(l)["step"] for l in (out / "metrics.jsonl").read_text().splitlines()]
 
 
-def test_the_runs_own_command_with_resume_continues(capsys, inputs, run_dir):
-    scenes, real = inputs
+def test_the_runs_own_command_with_resume_continues(capsys, train_inputs, run_dir):
+    scenes, real = train_inputs
     code, out, err = cli(capsys, command(scenes, real, run_dir, "--iterations", "4", "--checkpoint-every", "3", "--resume"))
     assert code == 0, err
     assert "changes" not in out and "step 4" in out
@@ -90,8 +83,8 @@ def test_the_runs_own_command_with_resume_continues(capsys, inputs, run_dir):
     assert steps_logged(run_dir) == [2, 4, 5]  # log_every is 5 in tiny: each run logs its last step
 
 
-def test_conflicting_flags_are_refused_naming_each_key(capsys, inputs, run_dir, tmp_path):
-    scenes, real = inputs
+def test_conflicting_flags_are_refused_naming_each_key(capsys, train_inputs, run_dir, tmp_path):
+    scenes, real = train_inputs
     other_real = shutil.copytree(real, tmp_path / "other_real")
     before = snapshot(run_dir)
     argv = ["train", "--preset", "tiny", "--scenes", scenes, "--real", other_real, "--out", run_dir, "--device", "auto",

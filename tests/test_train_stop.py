@@ -16,19 +16,13 @@ import pytest
 from sim2real.cli.main import main
 from sim2real.engine import checkpoint as ckpt
 from sim2real.engine.trainer import Trainer
-from train_data import real_dir, scene_dir, tiny_config
+from train_data import tiny_config
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 # the CLI with default dispositions of both signals (a shell's background job inherits SIGINT ignored)
 CHILD = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
          "signal.signal(signal.SIGTERM, signal.SIG_DFL); from sim2real.cli.main import main; sys.exit(main(sys.argv[1:]))")
 TIMEOUT = 180  # seconds; generous for a loaded 2-core machine
-
-
-@pytest.fixture(scope="module")
-def inputs(tmp_path_factory):
-    base = tmp_path_factory.getbasetemp()
-    return scene_dir(base, 11), real_dir(base)
 
 
 def train_args(scenes, real, out, *extra):
@@ -99,11 +93,11 @@ def assert_stopped_with_checkpoint(out: Path, stdout: str, seen: int, name: str)
     return done
 
 
-def test_sigterm_and_ctrl_c_stop_after_the_step_with_a_checkpoint(capsys, inputs, tmp_path, one_torch_thread):
+def test_sigterm_and_ctrl_c_stop_after_the_step_with_a_checkpoint(capsys, train_inputs, tmp_path, one_torch_thread):
     """Two training children at once (their start-up, mostly imports, overlaps): SIGTERM to one;
     SIGINT to the other's whole process group, as a terminal's Ctrl-C, with a DataLoader worker
     that must leave the stop to the main process. Then the SIGTERM run resumes."""
-    scenes, real = inputs
+    scenes, real = train_inputs
     term = Child(tmp_path / "term", train_args(scenes, real, tmp_path / "term" / "run"))
     ctrl_c = Child(tmp_path / "int", train_args(scenes, real, tmp_path / "int" / "run", "data.workers=1"),
                    start_new_session=True)
@@ -136,8 +130,8 @@ def test_sigterm_and_ctrl_c_stop_after_the_step_with_a_checkpoint(capsys, inputs
     assert logged_steps(term.out) == list(range(1, done + 3))  # every step once: nothing lost, nothing repeated
 
 
-def test_a_second_signal_during_the_checkpoint_write_is_ignored(inputs, tmp_path, monkeypatch):
-    scenes, real = inputs
+def test_a_second_signal_during_the_checkpoint_write_is_ignored(train_inputs, tmp_path, monkeypatch):
+    scenes, real = train_inputs
     cfg = tiny_config(iterations=50, checkpoint_every=1000, image_every=1000, log_every=1000)
     trainer = Trainer(cfg, [scenes], real, tmp_path / "run", progress=False)
     received = []

@@ -20,9 +20,12 @@ all that "a new appearance every frame" means to the metrics.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from sim2real.render.gbuffer import GBuffer
+from sim2real.render.realdomain import Appearance, RenderOptions, SceneMaterial, derive_seed, render_frame
 
 _CEILING, _FLOOR, _NOISE = 31, 32, 33  # seed tags
 
@@ -30,32 +33,23 @@ _CEILING, _FLOOR, _NOISE = 31, 32, 33  # seed tags
 class Anchors:
     """Ceiling and floor frames of one scene (uint8 RGB, the G-buffer's size)."""
 
-    def __init__(self, scene, seed: int = 0, pool: int = 21, options=None):
-        from sim2real.render.realdomain import Appearance, RenderOptions, derive_seed
-
+    def __init__(self, scene, seed: int = 0, pool: int = 21, options: RenderOptions | None = None):
         self.scene = scene
         self.seed = int(seed)
         self.pool = max(1, int(pool))
         self.options = options or RenderOptions()
-        self._derive = derive_seed
-        self._appearance = Appearance.sample
-        self._materials: dict[int, object] = {}
+        self._materials: dict[int, SceneMaterial] = {}
 
-    def _material(self, key: int):
-        from sim2real.render.realdomain import SceneMaterial
-
+    def _material(self, key: int) -> SceneMaterial:
+        """Key -1: the ceiling's appearance; 0..pool-1: the floor's."""
         if key not in self._materials:
             tag = (_CEILING,) if key < 0 else (_FLOOR, key)
-            self._materials[key] = SceneMaterial(self.scene, self._appearance(self._derive(self.seed, *tag)))
+            self._materials[key] = SceneMaterial(self.scene, Appearance.sample(derive_seed(self.seed, *tag)))
         return self._materials[key]
 
     def _render(self, g: GBuffer, key: int, index: int) -> np.ndarray:
-        from dataclasses import replace
-
-        from sim2real.render.realdomain import render_frame
-
         opt = replace(self.options, height=g.height, width=g.width)
-        return render_frame(g, self._material(key), opt, self._derive(self.seed, _NOISE, int(index))).image
+        return render_frame(g, self._material(key), opt, derive_seed(self.seed, _NOISE, int(index))).image
 
     def ceiling(self, g: GBuffer, index: int) -> np.ndarray:
         """The stand-in with the ceiling's one appearance; ``index`` seeds the sensor noise."""
@@ -72,7 +66,7 @@ def stand_in_options(real_root):
     import json
     from pathlib import Path
 
-    from sim2real.render.realdomain import FORMAT, RenderOptions
+    from sim2real.render.realdomain import FORMAT
 
     for d in (Path(real_root), Path(real_root).parent):
         m = d / "manifest.json"
