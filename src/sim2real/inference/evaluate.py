@@ -51,6 +51,9 @@ from sim2real.inference.realset import find_real, fit_image, to_nchw
 from sim2real.inference.rows import PAPER_KS, ROWS, pool_rows, positions, scalars
 
 FORMAT = "sim2real-evaluation/2"
+_VIEW_INDEX0 = 100_000
+"""Anchor frame index (which seeds the sensor noise and picks the floor's appearance) of the first
+random view: apart from the sequences' frame indices 0..T-1."""
 
 
 @dataclass
@@ -201,8 +204,8 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
                 gen_liver.append(g.class_index() == 0)
                 views["a_ref"].append(to_uint8(reference_rendering(g)))
                 if s.anchors:
-                    views["ceiling"].append(anchors[sc.name].ceiling(g, 100_000 + i))
-                    views["floor"].append(anchors[sc.name].floor(g, 100_000 + i))
+                    views["ceiling"].append(anchors[sc.name].ceiling(g, _VIEW_INDEX0 + i))
+                    views["floor"].append(anchors[sc.name].floor(g, _VIEW_INDEX0 + i))
             bar.update(len(chunk))
     bar.close()
     gen = views["model"]
