@@ -86,7 +86,7 @@ class AuthorsStyleTrainer:
         for m in self.tr.modules():
             if isinstance(m, UpConv2dBlock):
                 m.subpixel = False  # upsample, then convolve
-        self.textures = nn.ModuleList(GatherScatterTexture(s, cfg.texture) for s in sources).to(device)
+        self.textures = nn.ModuleList(GatherScatterTexture(s, cfg.method.texture) for s in sources).to(device)
         o = cfg.optim
         kw = dict(betas=(o.beta1, o.beta2), weight_decay=o.weight_decay)
         self.opt_gen = torch.optim.Adam(self.tr.parameters(), lr=o.lr_net, **kw)
@@ -113,7 +113,7 @@ class AuthorsStyleTrainer:
         return loss
 
     def gen_update(self, x_a, x_b, batch, lists, step):
-        t, L, n = self.tr, self.cfg.loss, self.cfg.texture.features
+        t, L, n = self.tr, self.cfg.loss, self.cfg.method.texture.features
         self.opt_gen.zero_grad()
         self.opt_tex.zero_grad()
         c_a, c_b = t.enc_a(x_a), t.enc_b(x_b)
@@ -127,11 +127,12 @@ class AuthorsStyleTrainer:
                 + L.content * (l1(c_a_recon, c_a) + l1(c_b_recon, c_b))
                 + L.ssim_ab * ms_ssim_loss(x_a[:, n:], x_ab, L.ssim_win, L.ssim_scales)
                 + L.ssim_ba * ms_ssim_loss(x_b, x_ba[:, n:], L.ssim_win, L.ssim_scales))
-        if step >= L.vc_start:
+        m = self.cfg.method
+        if step >= m.vc_start:
             with torch.no_grad():
                 b_j = t.dec_b(t.enc_a(self._x_a(batch, lists, "j")))
                 warped, mask = warp_backward(b_j, batch["uv_ij"], batch["visible_ij"])
-            loss = loss + L.vc * view_consistency(L.vc_kind, x_ab, warped, mask)
+            loss = loss + m.vc * view_consistency(m.vc_kind, x_ab, warped, mask)
         loss.backward()
         self.opt_gen.step()
         self.opt_tex.step()

@@ -126,7 +126,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench_conv_") as tmp:
         base = Path(tmp)
         scene, real = _inputs(base)
-        cfg = override(get_preset(args.preset), ["loss.vc_start=0", f"device={args.device}", "data.workers=0"])
+        cfg = override(get_preset(args.preset), ["method.vc_start=0", f"device={args.device}", "data.workers=0"])
         trainer = Trainer(cfg, [scene], real, base / "run", progress=False)
         device = trainer.device
         ds = TrainPairs(resolve_scenes([scene], cfg.data.height, cfg.data.width), RealImages(real), cfg.data, seed=0)

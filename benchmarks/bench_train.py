@@ -100,7 +100,7 @@ def child(preset: str, impls: list[str], iters: int, base: Path, device_name: st
     from sim2real.data.real import RealImages
 
     scene, real = _inputs(base)
-    cfg = override(get_preset(preset), ["loss.vc_start=0", f"device={device_name}", "data.workers=0"])
+    cfg = override(get_preset(preset), ["method.vc_start=0", f"device={device_name}", "data.workers=0"])
     sources = resolve_scenes([scene], cfg.data.height, cfg.data.width)
     ds = TrainPairs(sources, RealImages(real), cfg.data, seed=0)
     n = WARMUP[preset] + iters

@@ -65,7 +65,7 @@ def translate(state: dict, batches: list[dict]) -> tuple[torch.Tensor, torch.Ten
     """(b_hat, a_tex) of view i of every batch, with the generator of checkpoint ``state``."""
     from sim2real.config import TrainConfig, from_dict
     from sim2real.data.datasets import resolve_scenes
-    from sim2real.engine.method import get_method
+    from sim2real.methods import get_method
 
     cfg = from_dict(TrainConfig, state["config"])
     method = get_method(cfg)
@@ -77,7 +77,7 @@ def translate(state: dict, batches: list[dict]) -> tuple[torch.Tensor, torch.Ten
     with torch.no_grad():
         for b in batches:
             texs.append(method.a_tex(gen, b, "i"))
-            outs.append(gen.translator.a_to_b(gen.translator.join_a(texs[-1], b["a_ref_i"]))[0])
+            outs.append(method.translate_frames(gen, b))
     return torch.cat(outs), torch.cat(texs)
 
 

@@ -48,7 +48,7 @@ def test_resume_reproduces_uninterrupted_losses(tmp_path, inputs):
     scenes, real = inputs
     # L_vc switches on at step 4, after the resume point: the release never turned it back on
     cfg = tiny_config(iterations=6, checkpoint_every=3, keep_checkpoints="true", deterministic="true",
-                      loss__vc_start=4, log_every=1, image_every=100)
+                      method__vc_start=4, log_every=1, image_every=100)
     full = _run(Trainer(cfg, [scenes], real, tmp_path / "a", progress=False))
     assert sorted(full) == list(range(6))
     mid = tmp_path / "a" / "checkpoints" / "step_0000003.pt"

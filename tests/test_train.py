@@ -12,7 +12,7 @@ from torch.utils.data import default_collate
 
 from sim2real.data.datasets import PAIR_TRIES, TrainPairs, resolve_scenes
 from sim2real.data.real import RealImages, random_resized_crop, to_rgb
-from sim2real.engine.method import METHODS, get_method
+from sim2real.methods import METHOD_PRESETS, get_method
 from sim2real.engine.trainer import Trainer
 from sim2real.errors import UserError
 from sim2real.render.gbuffer import GBuffer
@@ -45,7 +45,7 @@ def _eval(trainer, steps=EVAL_STEPS):
 def ten_steps(tmp_path_factory, inputs):
     scenes, real = inputs
     out = tmp_path_factory.mktemp("ten") / "run"
-    cfg = tiny_config(iterations=10, log_every=5, image_every=5, checkpoint_every=5, loss__vc_start=5)
+    cfg = tiny_config(iterations=10, log_every=5, image_every=5, checkpoint_every=5, method__vc_start=5)
     trainer = Trainer(cfg, [scenes], real, out, progress=False)
     before = _eval(trainer)
     times, losses = [], {}
@@ -78,8 +78,16 @@ def test_losses_and_schedule(ten_steps):
     for k in ("dis/dis_a", "dis/dis_b", "gen/adv_a", "gen/adv_b", "gen/rec_a", "gen/rec_b", "gen/cyc_a",
               "gen/cyc_b", "gen/content_a", "gen/content_b", "gen/ssim_ab", "gen/ssim_ba"):
         assert k in losses[0]
-    # vc term = 20 * mean angle (radians) of a barely trained translator: positive, < 20 * pi/2
-    assert 0 < losses[9]["gen/vc"] < 20 * np.pi / 2
+    # the vc term is logged unweighted: the mean angle (radians) of a barely trained translator
+    assert 0 < losses[9]["gen/vc"] < np.pi / 2
+    # the totals are the paper's weighted sums (supplementary, "Losses"; lambda_vc = 20 from vc_start)
+    paper = {"adv_a": 1, "adv_b": 1, "rec_a": 10, "rec_b": 10, "cyc_a": 10, "cyc_b": 10, "content_a": 1,
+             "content_b": 1, "ssim_ab": 5, "ssim_ba": 3, "vc": 20}
+    for s in (4, 9):
+        v = losses[s]
+        want = sum(w * v[f"gen/{k}"] for k, w in paper.items() if f"gen/{k}" in v)
+        assert v["gen/total"] == pytest.approx(want, rel=1e-5)
+        assert v["dis/total"] == pytest.approx(v["dis/dis_a"] + v["dis/dis_b"], rel=1e-5)
 
 
 def test_tensorboard_metrics_and_image_grids(ten_steps):
@@ -90,11 +98,11 @@ def test_tensorboard_metrics_and_image_grids(ten_steps):
     acc.Reload()
     tags = set(acc.Tags()["scalars"])
     for name in ("gen/rec_a", "gen/ssim_ab", "gen/vc", "dis/dis_a", "lr/net", "lr/tex", "lr/dis",
-                 "schedule/vc_weight", "time/iterations_per_s", "gen/total"):
+                 "weight/vc", "weight/rec_a", "time/iterations_per_s", "gen/total", "dis/total"):
         assert name in tags, name
     assert [e.step for e in acc.Scalars("gen/rec_a")] == [5, 10]
     assert acc.Scalars("lr/tex")[0].value == pytest.approx(1e-3)
-    assert acc.Scalars("schedule/vc_weight")[-1].value == 20.0
+    assert acc.Scalars("weight/vc")[-1].value == 20.0 and acc.Scalars("weight/rec_a")[-1].value == 10.0
     assert "samples" in acc.Tags()["images"]
     lines = [json.loads(l) for l in (out / "metrics.jsonl").read_text().splitlines()]
     assert [l["step"] for l in lines] == [5, 10]
@@ -149,7 +157,7 @@ def _count_calls(trainer):
 
 def test_translations_computed_once_per_iteration(inputs, tmp_path):
     scenes, real = inputs
-    trainer = Trainer(tiny_config(loss__vc_start=0), [scenes], real, tmp_path / "r", progress=False)
+    trainer = Trainer(tiny_config(method__vc_start=0), [scenes], real, tmp_path / "r", progress=False)
     counts = _count_calls(trainer)
     batch = trainer._to_device(default_collate([trainer.dataset[0]]))
     tex_before = trainer.gen.textures[trainer.gen.scene_keys[0]].texture.detach().clone()
@@ -165,7 +173,7 @@ def test_translations_computed_once_per_iteration(inputs, tmp_path):
 
 def test_view_j_gets_no_gradient(inputs, tmp_path):
     scenes, real = inputs
-    trainer = Trainer(tiny_config(loss__vc_start=0), [scenes], real, tmp_path / "r", progress=False)
+    trainer = Trainer(tiny_config(method__vc_start=0), [scenes], real, tmp_path / "r", progress=False)
     batch = trainer._to_device(default_collate([trainer.dataset[0]]))
     out = trainer.method.translate(trainer.gen, batch, 0)
     assert out["b_hat"].requires_grad
@@ -179,7 +187,7 @@ def test_mixed_precision_path_on_cpu(inputs, tmp_path, monkeypatch):
     from sim2real.engine import precision
 
     scenes, real = inputs
-    cfg = tiny_config(loss__vc_start=0)
+    cfg = tiny_config(method__vc_start=0)
     fp32 = Trainer(cfg, [scenes], real, tmp_path / "fp32", progress=False)
     monkeypatch.setattr(precision, "mixed_precision", lambda device: True)
     bf16 = Trainer(cfg, [scenes], real, tmp_path / "bf16", progress=False)
@@ -210,20 +218,39 @@ def test_mixed_precision_path_on_cpu(inputs, tmp_path, monkeypatch):
     assert (tex16 - init).abs().max() <= cfg.optim.lr_tex * 1.001  # Adam's first step: at most lr
 
 
-def test_variants(inputs, tmp_path):
+def test_ablations_are_presets_of_ours(inputs, tmp_path):
+    from sim2real.losses import angle_loss
+
     scenes, real = inputs
-    assert set(METHODS) == {"ours", "ours_no_vc", "ours_no_tex_vc"}
-    with pytest.raises(UserError, match="unknown method 'ssim_munit'"):
-        get_method(tiny_config(method="ssim_munit"))
-    no_tex = Trainer(tiny_config(method="ours_no_tex_vc", loss__vc_start=0), [scenes], real, tmp_path / "a", progress=False)
-    assert len(no_tex.gen.textures) == 0 and "tex" not in no_tex.optimizers
-    batch = no_tex._to_device(default_collate([no_tex.dataset[0]]))
+    assert {"ours", "ours_no_vc", "ours_l1_vc", "ours_no_tex_vc"} <= set(METHOD_PRESETS)
+    with pytest.raises(UserError, match="unknown method 'cyclegan'"):
+        tiny_config(method="cyclegan")
+    # no texture: domain A is a_ref alone (3 channels, D_A too), no texture group, single views
+    no_tex = Trainer(tiny_config(method="ours_no_tex_vc"), [scenes], real, tmp_path / "a", progress=False)
+    assert type(no_tex.method).name == "ours" and len(no_tex.gen.textures) == 0 and "tex" not in no_tex.optimizers
+    assert no_tex.gen.translator.enc_a.model[0].conv.in_channels == 3
+    assert no_tex.dis.dis_a.cnns[0][0].conv.in_channels == 3
+    sample = no_tex.dataset[0]
+    assert "a_ref_j" not in sample and "uv_ij" not in sample  # view j is not even ray-cast
+    batch = no_tex._to_device(default_collate([sample]))
     out = no_tex.method.translate(no_tex.gen, batch, 10)
-    assert torch.count_nonzero(out["x_a"][:, :3]) == 0 and torch.equal(out["x_a"][:, 3:], batch["a_ref_i"])
+    assert torch.equal(out["x_a"], batch["a_ref_i"])
     assert "gen/vc" not in no_tex.train_step(batch, 10)
-    no_vc = Trainer(tiny_config(method="ours_no_vc", loss__vc_start=0), [scenes], real, tmp_path / "b", progress=False)
-    assert "tex" in no_vc.optimizers and no_vc.method.vc_weight(10**6) == 0.0
-    assert "gen/vc" not in no_vc.train_step(batch, 10)
+    # no view consistency: the texture is learned, lambda_vc is 0 at every step
+    no_vc = Trainer(tiny_config(method="ours_no_vc"), [scenes], real, tmp_path / "b", progress=False)
+    assert "tex" in no_vc.optimizers and no_vc.method.loss_weights(10**6)["vc"] == 0.0
+    assert "a_ref_j" not in no_vc.dataset[0]
+    assert "gen/vc" not in no_vc.train_step(no_vc._to_device(default_collate([no_vc.dataset[0]])), 10)
+    # L1 view consistency: channel-mean |b_i - w(b_j)| over matched pixels (by hand), not the angle
+    l1 = Trainer(tiny_config(method="ours_l1_vc", method__vc_start=0), [scenes], real, tmp_path / "c", progress=False)
+    batch = l1._to_device(default_collate([l1.dataset[0]]))
+    with torch.no_grad():
+        out = l1.method.translate(l1.gen, batch, 0)
+        vc = l1.method.gen_losses(l1.dis, batch, out, 0)["vc"]
+    m = out["vc_mask"][0].numpy()
+    diff = np.abs(out["b_hat"][0].numpy() - out["b_hat_j_warped"][0].numpy()).mean(0)
+    assert m.sum() > 0 and vc.item() == pytest.approx(float(diff[m].mean()), rel=1e-5)
+    assert vc.item() != pytest.approx(angle_loss(out["b_hat"], out["b_hat_j_warped"], out["vc_mask"]).item(), rel=1e-3)
 
 
 def test_nan_loss_stops_with_last_good_checkpoint(inputs, tmp_path):

@@ -43,15 +43,23 @@ def test_unknown_preset(capsys, tmp_path, inputs):
 
 def test_unknown_and_malformed_keys(capsys, tmp_path, inputs):
     assert_error(train(capsys, tmp_path, [inputs[0]], inputs[1], "--set", "loss.nope=1"), "unknown config key 'loss.nope'")
-    assert_error(train(capsys, tmp_path, [inputs[0]], inputs[1], "--set", "loss.vc=abc"), "loss.vc", "expects float")
-    assert_error(train(capsys, tmp_path, [inputs[0]], inputs[1], "--set", "method=cyclegan"), "unknown method 'cyclegan'")
+    assert_error(train(capsys, tmp_path, [inputs[0]], inputs[1], "--set", "method.vc=abc"), "method.vc", "expects float")
+    assert_error(train(capsys, tmp_path, [inputs[0]], inputs[1], "--method", "cyclegan"), "unknown method 'cyclegan'",
+                 "ours_no_vc")
+    assert_error(train(capsys, tmp_path, [inputs[0]], inputs[1], "--set", "method=ours"), "'method' is a section",
+                 "--method NAME")
+    # a key of another method's section is unknown in this one
+    assert_error(train(capsys, tmp_path, [inputs[0]], inputs[1], "--set", "loss.vc=1"), "unknown config key 'loss.vc'")
     assert_error(train(capsys, tmp_path, [inputs[0]], inputs[1], "--set", "data.height=66"), "multiples of 4")
     assert not (tmp_path / "run").exists()  # nothing written for a refused run
 
 
 @pytest.mark.parametrize("setting,words", [
-    ("texture.size=0", ["'texture.size'", ">= 1"]),
-    ("texture.mapping=sphere", ["'texture.mapping'", "box, cube"]),
+    ("method.texture.size=0", ["'method.texture.size'", ">= 1"]),
+    ("method.texture.features=-1", ["'method.texture.features'", ">= 0"]),
+    ("method.texture.mapping=sphere", ["'method.texture.mapping'", "box, cube"]),
+    ("method.vc=-1", ["'method.vc'", ">= 0"]),
+    ("method.vc_start=-1", ["'method.vc_start'", ">= 0"]),
     ("generator.filters=0", ["'generator.filters'"]),
     ("generator.content_channels=-1", ["'generator.content_channels'", ">= 0"]),
     ("generator.upsample_norm=bn", ["'generator.upsample_norm'", "in, ln, none"]),
@@ -59,7 +67,7 @@ def test_unknown_and_malformed_keys(capsys, tmp_path, inputs):
     ("discriminator.scales=0", ["'discriminator.scales'"]),
     ("loss.ssim_scales=6", ["'loss.ssim_scales'", "1..5"]),
     ("loss.cyc=-10", ["'loss.cyc'", ">= 0"]),
-    ("loss.vc_kind=cosine", ["'loss.vc_kind'", "angle, l1"]),
+    ("method.vc_kind=cosine", ["'method.vc_kind'", "angle, l1"]),
     ("optim.lr_tex=.nan", ["'optim.lr_tex'", "nan"]),
     ("optim.lr_net=0", ["'optim.lr_net'", "> 0"]),
     ("optim.beta1=1.5", ["'optim.beta1'", "[0, 1)"]),
@@ -134,10 +142,10 @@ def test_cuda_requested_without_cuda(capsys, tmp_path, inputs):
 
 def test_grey_and_rgba_images_train(capsys, tmp_path, inputs):
     real = real_dir(tmp_path, n=4, name="odd_modes", modes=("L", "LA", "RGBA", "P"))
-    code, err, out = train(capsys, tmp_path, [inputs[0]], real, "--iterations", "1", "--set", "loss.vc=5",
+    code, err, out = train(capsys, tmp_path, [inputs[0]], real, "--iterations", "1", "--set", "method.vc=5",
                            "log_every=1", "--device", "cpu")
     assert code == 0, err
     assert "step 1" in out
     saved = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
-    assert saved["iterations"] == 1 and saved["loss"]["vc"] == 5.0 and saved["device"] == "cpu"
+    assert saved["iterations"] == 1 and saved["method"] == {**saved["method"], "name": "ours", "vc": 5.0} and saved["device"] == "cpu"
     assert saved["generator"]["filters"] == 8  # the tiny preset

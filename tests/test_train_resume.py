@@ -27,7 +27,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 def command(scenes, real, out, *extra):
     """The run's command as a person types it (the --set value is not the preset's)."""
     return ["train", "--preset", "tiny", "--scenes", str(scenes), "--real", str(real), "--out", str(out),
-            "--device", "cpu", "--set", "loss.vc=5", "image_every=1000", "--no-progress", *extra]
+            "--device", "cpu", "--set", "method.vc=5", "image_every=1000", "--no-progress", *extra]
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +74,7 @@ def test_the_runs_own_command_with_resume_continues(capsys, train_inputs, run_di
     assert "changes" not in out and "step 4" in out
     last = run_dir / "checkpoints" / "last.pt"
     state = load_checkpoint(last)
-    assert state["step"] == 4 and state["config"]["loss"]["vc"] == 5.0 and state["config"]["checkpoint_every"] == 3
+    assert state["step"] == 4 and state["config"]["method"]["vc"] == 5.0 and state["config"]["checkpoint_every"] == 3
     # the run's config.yaml instead of the preset (with --set and --device left out: it holds them)
     code, out, err = cli(capsys, ["train", "--config", run_dir / "config.yaml", "--scenes", scenes, "--real", real,
                                   "--out", run_dir, "--iterations", "5", "--resume", "--no-progress"])
@@ -88,11 +88,11 @@ def test_conflicting_flags_are_refused_naming_each_key(capsys, train_inputs, run
     other_real = shutil.copytree(real, tmp_path / "other_real")
     before = snapshot(run_dir)
     argv = ["train", "--preset", "tiny", "--scenes", scenes, "--real", other_real, "--out", run_dir, "--device", "auto",
-            "--set", "loss.vc=7", "seed=3", "image_every=1000", "--iterations", "9", "--resume", "--no-progress"]
+            "--set", "method.vc=7", "seed=3", "image_every=1000", "--iterations", "9", "--resume", "--no-progress"]
     code, _, err = cli(capsys, argv)
     assert code == 2
     line = one_error_line(err)
-    assert "loss.vc: 5.0 in the checkpoint, 7.0 here" in line
+    assert "method.vc: 5.0 in the checkpoint, 7.0 here" in line
     assert "seed: 0 in the checkpoint, 3 here" in line
     assert "device: 'cpu' in the checkpoint, 'auto' here" in line
     assert f"--real: '{Path(real).resolve()}' in the checkpoint, '{other_real.resolve()}' here" in line, line
@@ -102,7 +102,7 @@ def test_conflicting_flags_are_refused_naming_each_key(capsys, train_inputs, run
                                 "--device", "cpu", "--set", "image_every=1000", "--resume", "--no-progress"])
     assert code == 2
     line = one_error_line(err)
-    assert f"loss.vc: 5.0 in the checkpoint, {preset('tiny').loss.vc} here" in line
+    assert f"method.vc: 5.0 in the checkpoint, {preset('tiny').method.vc} here" in line
     assert line.count(" in the checkpoint, ") == 1
     # another preset
     code, _, err = cli(capsys, ["train", "--preset", "small", "--out", run_dir, "--resume", "--no-progress"])
@@ -120,7 +120,7 @@ def test_resume_without_preset_changes_fields_and_says_so(capsys, run_dir):
     assert f"resuming {run_dir} at step 2 with changes: log_every {preset('tiny').log_every} -> 1" in out
     assert yaml.safe_load((run_dir / "config.yaml").read_text())["log_every"] == 1
     state = load_checkpoint(run_dir / "checkpoints" / "last.pt")
-    assert state["step"] == 3 and state["config"]["log_every"] == 1 and state["config"]["loss"]["vc"] == 5.0
+    assert state["step"] == 3 and state["config"]["log_every"] == 1 and state["config"]["method"]["vc"] == 5.0
 
 
 HOLDER = ("import sys, time; from sim2real.engine.runlock import RunLock; lock = RunLock(sys.argv[1]).acquire(); "

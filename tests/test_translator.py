@@ -128,7 +128,7 @@ def test_initialisation_follows_release():
     assert conv.bias.abs().max() == 0
     dconv = models.dis_b.cnns[0][2].conv  # 128 -> 256, 4x4
     assert abs(dconv.weight.std().item() - 0.02) < 0.001 and abs(dconv.weight.mean().item()) < 0.001
-    assert models.dis_a.cnns[0][0].conv.in_channels == preset("paper").texture.features + 3
+    assert models.dis_a.cnns[0][0].conv.in_channels == preset("paper").method.texture.features + 3
     assert len(models.dis_a.cnns) == 3
 
 
@@ -203,7 +203,7 @@ def test_decoder_up_step_is_the_release_layer_sequence():
 def test_tiny_preset_models_build_and_run():
     cfg = preset("tiny")
     models = build_models(cfg)
-    x_a = torch.rand(1, cfg.texture.features + 3, cfg.data.height, cfg.data.width) * 2 - 1
+    x_a = torch.rand(1, cfg.method.texture.features + 3, cfg.data.height, cfg.data.width) * 2 - 1
     b_hat, _ = models.translator.a_to_b(x_a)
     outs = models.dis_b(b_hat)
     assert len(outs) == cfg.discriminator.scales

@@ -39,11 +39,12 @@ def real_dir(base: Path, n: int = 4, name: str = "real", modes=("RGB",)) -> Path
     return path
 
 
-def tiny_config(**changes):
-    """The tiny preset with ``section.field=value`` changes (as ``--set`` would apply them)."""
+def tiny_config(method: str = "ours", **changes):
+    """The tiny preset of ``method`` with ``section.field=value`` changes (as ``--method`` and
+    ``--set`` would apply them)."""
     from sim2real.config import override, preset
 
-    return override(preset("tiny"), [f"{k.replace('__', '.')}={v}" for k, v in changes.items()])
+    return override(preset("tiny", method), [f"{k.replace('__', '.')}={v}" for k, v in changes.items()])
 
 
 def views_dir(base: Path, scene_path: Path, n: int = 4, height: int = 64, width: int = 128, name: str | None = None) -> Path:

@@ -26,7 +26,8 @@ class TextureConfig:
     size: int = 512
     """Texels along each side of each of the 6 planes (paper: 512)."""
     features: int = 3
-    """Learnable features per texel (paper: 3)."""
+    """Learnable features per texel (paper: 3). 0: no neural texture, the translator's domain A
+    is a_ref alone (the ablation 'ours_no_tex_vc')."""
     mapping: str = "box"
     """'box': each plane spans its object's bounding box (paper).
     'cube': one uniform scale, the box's largest side, so texels are square."""
@@ -62,7 +63,9 @@ class DiscriminatorConfig:
 
 @dataclass
 class LossConfig:
-    """Loss weights of the paper (supplementary, 'Losses')."""
+    """Loss weights of the paper (supplementary, 'Losses') that every translator-based method
+    shares; a method's own terms (view consistency, style reconstruction, recurrence, ...) and
+    their weights live in its section, ``method``."""
 
     adv: float = 1.0
     cyc: float = 10.0
@@ -75,12 +78,6 @@ class LossConfig:
     ssim_win: int = 11
     """MS-SSIM window (paper: 11, 5 scales; needs a short side of > 160 px)."""
     ssim_scales: int = 5
-    vc: float = 20.0
-    """View-consistency weight once switched on."""
-    vc_start: int = 10_000
-    """Iteration from which the view-consistency weight is ``vc`` (0 before)."""
-    vc_kind: str = "angle"
-    """'angle' (lighting invariant, paper) or 'l1' (the ablation)."""
 
 
 @dataclass
@@ -111,16 +108,58 @@ class DataConfig:
     ``AUTO_WORKERS_MAX``. On the 2-core dev CPU one worker makes 4.3 paper-size samples/s from
     fresh ray casts and 11 from cached views (benchmarks/bench_data.py), so 20 it/s needs 5 such
     workers (cached: 3)."""
+    path_step_mm: float = 0.5
+    """Camera motion per frame (mm) of the short linear paths that the video methods train on
+    (data/triplets.py)."""
     min_overlap: float = 0.1
     """Fraction of view i's pixels that must be visible in view j; below it view j is redrawn,
     view i kept (up to 10 draws; then the j with the largest overlap is used)."""
 
 
 @dataclass
+class MethodConfig:
+    """Base of every method's own config section (``TrainConfig.method``).
+
+    A subclass is registered under its method's name (:func:`register_method_config`); in YAML
+    the section is tagged with that name (``method: {name: ours, ...}``), so a config file
+    round-trips to the same class. Fields whose defaults depend on the size preset come from
+    :meth:`for_size`; :meth:`check` validates the section."""
+
+    name: typing.ClassVar[str] = "base"
+
+    @classmethod
+    def for_size(cls, size: str) -> "MethodConfig":
+        """The section's defaults for the size preset ``size`` ('paper', 'small', 'tiny')."""
+        return cls()
+
+    def check(self, cfg: "TrainConfig", need: typing.Callable[[bool, str, str, Any], None]) -> None:
+        """Refuse out-of-range values with ``need(ok, 'method.<key>', what, value)``."""
+
+
+METHOD_CONFIGS: dict[str, type[MethodConfig]] = {}
+"""Registered method config sections by method name (filled by :mod:`sim2real.methods`)."""
+
+
+def register_method_config(cls: type[MethodConfig]) -> type[MethodConfig]:
+    METHOD_CONFIGS[cls.name] = cls
+    return cls
+
+
+def _method_configs() -> dict[str, type[MethodConfig]]:
+    import sim2real.methods  # noqa: F401  (registers every method)
+
+    return METHOD_CONFIGS
+
+
+def _default_method() -> MethodConfig:
+    return _method_configs()["ours"]()
+
+
+@dataclass
 class TrainConfig:
-    method: str = "ours"
-    """Training variant (engine/method.py): 'ours', 'ours_no_vc' (lambda_vc = 0) or
-    'ours_no_tex_vc' (zeros instead of the neural texture, no L_vc)."""
+    method: MethodConfig = field(default_factory=_default_method)
+    """The method and its own settings (sim2real/methods/): choose one with ``--method NAME``
+    (a method or one of its named presets, :data:`sim2real.methods.METHOD_PRESETS`)."""
     iterations: int = 500_000
     checkpoint_every: int = 5_000
     keep_checkpoints: bool = False
@@ -133,7 +172,6 @@ class TrainConfig:
     amp: bool = True
     """bf16 autocast and channels-last on CUDA; CPU always runs fp32."""
     deterministic: bool = False
-    texture: TextureConfig = field(default_factory=TextureConfig)
     generator: GeneratorConfig = field(default_factory=GeneratorConfig)
     discriminator: DiscriminatorConfig = field(default_factory=DiscriminatorConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -148,18 +186,16 @@ AUTO_WORKERS_MAX = 8
 def validate(cfg: TrainConfig) -> None:
     """Refuse a configuration whose values would fail later, or silently do something else.
 
-    Checks every field's domain (``method`` is checked where it is looked up,
-    :func:`sim2real.engine.method.get_method`), then the sizes that depend on each other (image
+    Checks every field's domain (the ``method`` section checks its own,
+    :meth:`MethodConfig.check`), then the sizes that depend on each other (image
     size vs the generator's downsamplings, the discriminator's depth and the MS-SSIM window).
     Raises a :class:`UserError` naming the offending key.
     """
-    from sim2real.losses.consistency import VC_KINDS
     from sim2real.losses.ssim import MS_SSIM_WEIGHTS, check_ssim_size
     from sim2real.models.discriminator import min_input_side as dis_min_side
     from sim2real.models.layers import NORMS, PADS
     from sim2real.models.translator import min_input_side as gen_min_side
     from sim2real.scene.camera import FOV_RANGE_DEG, check_size
-    from sim2real.texture.neural_texture import MAPPINGS
 
     def need(ok: bool, key: str, what: str, value: Any) -> None:
         if not ok:
@@ -177,9 +213,7 @@ def validate(cfg: TrainConfig) -> None:
     at_least(cfg, "", "iterations checkpoint_every log_every image_every", 1)
     at_least(cfg, "", "seed", 0)
 
-    t, g, d, L, o, dat = cfg.texture, cfg.generator, cfg.discriminator, cfg.loss, cfg.optim, cfg.data
-    at_least(t, "texture.", "size features", 1)
-    choice(t.mapping, "texture.mapping", MAPPINGS)
+    g, d, L, o, dat = cfg.generator, cfg.discriminator, cfg.loss, cfg.optim, cfg.data
     at_least(g, "generator.", "filters", 1)
     at_least(g, "generator.", "downsamplings res_blocks content_channels", 0)
     choice(g.upsample_norm, "generator.upsample_norm", NORMS)
@@ -187,12 +221,10 @@ def validate(cfg: TrainConfig) -> None:
     at_least(d, "discriminator.", "filters layers scales", 1)
     choice(d.norm, "discriminator.norm", NORMS)
     choice(d.pad_type, "discriminator.pad_type", tuple(PADS))
-    for name in ("adv", "cyc", "rec", "content", "ssim_ab", "ssim_ba", "vc"):
+    for name in ("adv", "cyc", "rec", "content", "ssim_ab", "ssim_ba"):
         v = getattr(L, name)
         need(math.isfinite(v) and v >= 0, f"loss.{name}", "a finite weight >= 0", v)
     need(1 <= L.ssim_scales <= len(MS_SSIM_WEIGHTS), "loss.ssim_scales", f"in 1..{len(MS_SSIM_WEIGHTS)}", L.ssim_scales)
-    at_least(L, "loss.", "vc_start", 0)
-    choice(L.vc_kind, "loss.vc_kind", VC_KINDS)
     for name in ("lr_net", "lr_tex"):
         v = getattr(o, name)
         need(math.isfinite(v) and v > 0, f"optim.{name}", "a finite learning rate > 0", v)
@@ -204,10 +236,15 @@ def validate(cfg: TrainConfig) -> None:
     need(math.isfinite(dat.real_scale_max) and 0 < dat.real_scale_min <= dat.real_scale_max, "data.real_scale_min",
          f"> 0 and <= data.real_scale_max ({dat.real_scale_max})", dat.real_scale_min)
     at_least(dat, "data.", "workers", -1)
+    need(math.isfinite(dat.path_step_mm) and dat.path_step_mm >= 0, "data.path_step_mm", "finite and >= 0",
+         dat.path_step_mm)
     need(0 <= dat.min_overlap <= 1, "data.min_overlap", "a fraction in [0, 1]", dat.min_overlap)
     lo, hi = FOV_RANGE_DEG
     need(lo <= dat.fov_x_deg <= hi, "data.fov_x_deg", f"in [{lo:g}, {hi:g}] degrees", dat.fov_x_deg)
     check_size(dat.height, dat.width)
+    if type(cfg.method).name not in _method_configs():
+        raise UserError(f"unknown method '{type(cfg.method).name}'")
+    cfg.method.check(cfg, need)
 
     step = 2**g.downsamplings
     if dat.height % step or dat.width % step:
@@ -233,11 +270,10 @@ def _paper() -> TrainConfig:
 def _small() -> TrainConfig:
     cfg = TrainConfig(iterations=20_000, checkpoint_every=1_000, log_every=50, image_every=500)
     cfg.data = DataConfig(height=128, width=256)
-    cfg.texture = TextureConfig(size=256)
     cfg.generator = GeneratorConfig(filters=32)
     cfg.discriminator = DiscriminatorConfig(filters=32, scales=2)
     # 128 px short side: pytorch-msssim needs > 16 * (win - 1), so win 7 with 5 scales.
-    cfg.loss = LossConfig(ssim_win=7, vc_start=2_000)
+    cfg.loss = LossConfig(ssim_win=7)
     cfg.optim = OptimConfig(lr_halve_every=10_000)
     return cfg
 
@@ -245,11 +281,10 @@ def _small() -> TrainConfig:
 def _tiny() -> TrainConfig:
     cfg = TrainConfig(iterations=20, checkpoint_every=10, log_every=5, image_every=10)
     cfg.data = DataConfig(height=64, width=128, workers=0)
-    cfg.texture = TextureConfig(size=64)
     cfg.generator = GeneratorConfig(filters=8, res_blocks=1)
     cfg.discriminator = DiscriminatorConfig(filters=8, layers=2, scales=2)
     # 64 px short side: pytorch-msssim's limit allows only win 3 at 5 scales.
-    cfg.loss = LossConfig(ssim_win=3, vc_start=5)
+    cfg.loss = LossConfig(ssim_win=3)
     cfg.optim = OptimConfig(lr_halve_every=1_000)
     return cfg
 
@@ -259,21 +294,34 @@ PRESETS: dict[str, typing.Callable[[], TrainConfig]] = {
     "small": _small,
     "tiny": _tiny,
 }
+"""Size presets. The method section comes from :func:`sim2real.methods.method_config` for the
+chosen method and size (e.g. the texture size and the view-consistency start)."""
 
 
-def preset(name: str) -> TrainConfig:
+def preset(name: str, method: str = "ours") -> TrainConfig:
+    """Size preset ``name`` with method (or method preset) ``method``."""
+    from sim2real.methods import method_config
+
     if name not in PRESETS:
         raise UserError(f"unknown preset '{name}' (choose from {', '.join(PRESETS)})")
-    return PRESETS[name]()
+    cfg = PRESETS[name]()
+    cfg.method = method_config(method, name)
+    return cfg
 
 
 def to_dict(cfg: Any) -> dict:
-    return dataclasses.asdict(cfg)
+    """Plain nested dict of a config; a method section starts with its ``name`` tag."""
+    out = {"name": type(cfg).name} if isinstance(cfg, MethodConfig) else {}
+    for f in dataclasses.fields(cfg):
+        v = getattr(cfg, f.name)
+        out[f.name] = to_dict(v) if dataclasses.is_dataclass(v) else copy.deepcopy(v)
+    return out
 
 
 def differences(a: Any, b: Any) -> list[tuple[str, Any, Any]]:
     """``(dotted key, value in a, value in b)`` for every field where configs ``a`` and ``b``
-    (of one dataclass type) differ, in field order."""
+    differ, in field order (a key that only one of them has is given with None for the other,
+    e.g. when their methods differ)."""
 
     def flat(d: dict, prefix: str = "") -> dict:
         out = {}
@@ -282,13 +330,45 @@ def differences(a: Any, b: Any) -> list[tuple[str, Any, Any]]:
         return out
 
     fa, fb = flat(to_dict(a)), flat(to_dict(b))
-    return [(k, fa[k], fb[k]) for k in fa if fa[k] != fb[k]]
+    keys = list(fa) + [k for k in fb if k not in fa]
+    return [(k, fa.get(k), fb.get(k)) for k in keys if fa.get(k) != fb.get(k)]
+
+
+def migrate(data: dict) -> dict:
+    """A config dict of format 1 (checkpoints before methods had their own section: ``method``
+    a string, ``texture`` top level, ``loss.vc*``) -> today's layout. Newer dicts pass unchanged."""
+    if not isinstance(data, dict) or not isinstance(data.get("method"), str):
+        return data
+    data = copy.deepcopy(data)
+    old = data.pop("method")
+    if old not in ("ours", "ours_no_vc"):
+        raise UserError(f"this run was trained with the former method '{old}', which no longer exists "
+                        "(its texture channels were zeros; 'ours_no_tex_vc' now feeds a_ref alone): train it again")
+    loss = data.get("loss", {})
+    section = {"name": "ours", "texture": data.pop("texture", {})}
+    for key in ("vc", "vc_start", "vc_kind"):
+        if key in loss:
+            section[key] = loss.pop(key)
+    if old == "ours_no_vc":
+        section["vc"] = 0.0
+    data["method"] = section
+    return data
 
 
 def from_dict(cls: type, data: dict, where: str = "") -> Any:
-    """Build dataclass ``cls`` from a plain dict; unknown keys are an error."""
+    """Build dataclass ``cls`` from a plain dict; unknown keys are an error. A method section is
+    built as the class registered under its ``name`` tag."""
     if not isinstance(data, dict):
         raise UserError(f"config section '{where or cls.__name__}' must be a mapping")
+    if cls is TrainConfig:
+        data = migrate(data)
+    if isinstance(cls, type) and issubclass(cls, MethodConfig):
+        data = dict(data)
+        name = data.pop("name", None)
+        known = _method_configs()
+        if name not in known:
+            raise UserError(f"config section '{where}' names unknown method {name!r} (known: {', '.join(known)})")
+        cls = known[name]
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
@@ -346,7 +426,8 @@ def override(cfg: Any, assignments: list[str]) -> Any:
             raise UserError(f"unknown config key '{key}'")
         hint = typing.get_type_hints(type(target))[last]
         if dataclasses.is_dataclass(hint):
-            raise UserError(f"config key '{key}' is a section; set one of its fields")
+            hint_m = " (choose the method with --method NAME)" if isinstance(getattr(target, last), MethodConfig) else ""
+            raise UserError(f"config key '{key}' is a section; set one of its fields{hint_m}")
         setattr(target, last, _coerce(yaml.safe_load(raw) if raw else raw, hint, key))
     return cfg
 

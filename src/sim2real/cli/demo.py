@@ -46,7 +46,7 @@ def demo_config(preset_name: str | None, cuda: bool, device: str):
     sets = [f"device={device}", "iterations=10000000", "deterministic=false"]
     if name == "small" and preset_name is None:
         # ~0.7 s per iteration on a 2-core CPU (DESIGN.md); switch view consistency on early.
-        sets += ["generator.filters=16", "discriminator.filters=16", "loss.vc_start=300",
+        sets += ["generator.filters=16", "discriminator.filters=16", "method.vc_start=300",
                  "checkpoint_every=100", "image_every=100", "log_every=20"]
     elif name == "tiny":
         sets += ["checkpoint_every=5", "image_every=5", "log_every=5"]

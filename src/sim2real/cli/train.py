@@ -1,6 +1,6 @@
 """``sim2real train``: train textures + translator on simulated scenes and real images.
 
-    sim2real train --preset {paper,small,tiny} --scenes DIR... --real DIR --out RUN
+    sim2real train --preset {paper,small,tiny} [--method NAME] --scenes DIR... --real DIR --out RUN
                    [--iterations N] [--max-minutes M] [--checkpoint-every N] [--device {auto,cpu,cuda}]
                    [--set section.field=value ...] [--config YAML] [--resume]
     sim2real train --out RUN --resume [--iterations N] [--set ...]
@@ -31,6 +31,8 @@ RESUMABLE = ("iterations", "checkpoint_every")
 def register(sub) -> None:
     p = sub.add_parser("train", help="train neural textures and the translator (docs/training.md)")
     p.add_argument("--preset", help="configuration preset: paper, small or tiny")
+    p.add_argument("--method", help="method or method preset with --preset (default: ours): ours, ours_no_vc, "
+                                    "ours_l1_vc, ours_no_tex_vc, ... (sim2real/methods/)")
     p.add_argument("--config", help="YAML configuration (e.g. a run's config.yaml) instead of a preset")
     p.add_argument("--scenes", nargs="+", metavar="DIR",
                    help="scene folders (fresh random views are ray-cast) or views folders (cached G-buffers)")
@@ -42,7 +44,7 @@ def register(sub) -> None:
     p.add_argument("--checkpoint-every", type=positive_int, help="iterations between checkpoints")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="where to train (default: config, auto)")
     p.add_argument("--set", dest="overrides", action="append", nargs="+", default=[], metavar="KEY=VALUE",
-                   help="override any config field, e.g. --set loss.vc=10 data.workers=4")
+                   help="override any config field, e.g. --set method.vc=10 data.workers=4")
     p.add_argument("--resume", action="store_true",
                    help="continue RUN from RUN/checkpoints/last.pt (append it to the run's command, or give --out alone)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -52,13 +54,16 @@ def register(sub) -> None:
 def build_config(args: argparse.Namespace, base=None):
     """The effective config: preset / YAML / checkpoint config, then the direct flags, then --set."""
     from sim2real.config import load_yaml, override, preset
+    from sim2real.errors import UserError
 
+    if args.method and not args.preset:
+        raise UserError("--method goes with --preset (a --config file or a resumed run names its own method)")
     if base is not None:
         cfg = base
     elif args.config:
         cfg = load_yaml(args.config)
     else:
-        cfg = preset(args.preset)
+        cfg = preset(args.preset, args.method or "ours")
     sets = [s for group in args.overrides for s in group]
     if args.iterations is not None:
         sets.insert(0, f"iterations={args.iterations}")

@@ -1,4 +1,8 @@
-"""Training samples: two views i, j of one simulated scene and one real image per step.
+"""Training samples: views of one simulated scene (two, i and j, or one, i) and one real image per step.
+
+A method declares the kind of sample it trains on (:func:`make_dataset`): ``view_pairs`` (i, j
+and their correspondences) or ``views`` (i alone: the keys ``*_j``, ``uv_ij`` and ``visible_ij``
+are absent, and no view j is ray-cast).
 
 ``--scenes`` entries are either scene folders (``scene.json``) or views folders
 (``views.json`` naming their ``scene_dir``):
@@ -122,9 +126,12 @@ def resolve_scenes(paths: list[str | os.PathLike], height: int, width: int) -> l
 
 
 class TrainPairs(torch.utils.data.Dataset):
-    """Map-style dataset whose index is the training step (see module docstring)."""
+    """Map-style dataset whose index is the training step (see module docstring); ``pairs=False``
+    gives single views."""
 
-    def __init__(self, sources: list[SceneSource], real: RealImages, cfg: DataConfig, seed: int, rank: int = 0):
+    def __init__(self, sources: list[SceneSource], real: RealImages, cfg: DataConfig, seed: int, rank: int = 0,
+                 pairs: bool = True):
+        self.pairs = bool(pairs)
         self.sources = sources
         self.real = real
         self.cfg = cfg
@@ -146,35 +153,35 @@ class TrainPairs(torch.utils.data.Dataset):
         return np.random.default_rng((self.seed, self.rank, int(step)))
 
     def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
-        from sim2real.render.reference import reference_rendering
+        from sim2real.data.tensors import view_tensors
         from sim2real.render.warp import correspondences
 
         rng = self.rng(step)
         k = int(rng.integers(0, len(self.sources)))
         src = self.sources[k]
-        # View i is drawn once; a j that sees too little of it is redrawn (not the pair: half
-        # the ray casting of a redraw).
         ki, gi = self._view(src, rng)
-        best = None
-        for _ in range(PAIR_TRIES):
-            _, gj = self._view(src, rng, avoid=ki)
-            uv, visible = correspondences(gi, gj)
-            overlap = float(visible.mean())
-            if best is None or overlap > best[0]:
-                best = (overlap, gj, uv, visible)
-            if overlap >= self.cfg.min_overlap:
-                break
-        _, gj, uv, visible = best
+        views = [("i", gi)]
+        out = {"step": torch.tensor(int(step)), "scene": torch.tensor(k)}
+        if self.pairs:
+            # A j that sees too little of view i is redrawn (not the pair: half the ray casting
+            # of a redraw).
+            best = None
+            for _ in range(PAIR_TRIES):
+                _, gj = self._view(src, rng, avoid=ki)
+                uv, visible = correspondences(gi, gj)
+                overlap = float(visible.mean())
+                if best is None or overlap > best[0]:
+                    best = (overlap, gj, uv, visible)
+                if overlap >= self.cfg.min_overlap:
+                    break
+            _, gj, uv, visible = best
+            views.append(("j", gj))
+            out["uv_ij"] = torch.from_numpy(uv)
+            out["visible_ij"] = torch.from_numpy(visible)
         c = self.cfg
         real = self.real.sample(rng, c.height, c.width, c.real_scale_min, c.real_scale_max)
-        out = {"step": torch.tensor(int(step)), "scene": torch.tensor(k)}
-        for tag, g in (("i", gi), ("j", gj)):
-            out[f"a_ref_{tag}"] = torch.from_numpy(reference_rendering(g).transpose(2, 0, 1) * 2.0 - 1.0)
-            out[f"object_id_{tag}"] = torch.from_numpy(g.object_id.astype(np.int64))
-            out[f"points_{tag}"] = torch.from_numpy(np.ascontiguousarray(g.points, dtype=np.float32))
-            out[f"normal_{tag}"] = torch.from_numpy(np.ascontiguousarray(g.normal, dtype=np.float32))
-        out["uv_ij"] = torch.from_numpy(uv)
-        out["visible_ij"] = torch.from_numpy(visible)
+        for tag, g in views:
+            out.update({key: v[0] for key, v in view_tensors([g], tag).items()})
         out["real"] = torch.from_numpy(np.ascontiguousarray(real))
         return out
 
@@ -218,6 +225,24 @@ class TrainPairs(torch.utils.data.Dataset):
         else:
             self._views.move_to_end(path)
         return g
+
+
+DATA_KINDS = ("view_pairs", "views", "triplets")
+"""What a method may declare it trains on (:attr:`sim2real.methods.base.Method.data`):
+view pairs with correspondences, single views (both with single real images), and triplets of
+consecutive frames in both domains (data/triplets.py)."""
+
+
+def make_dataset(kind: str, sources: list[SceneSource], real: RealImages, cfg: DataConfig, seed: int,
+                 rank: int = 0) -> torch.utils.data.Dataset:
+    """The step-indexed training dataset of kind ``kind`` (:data:`DATA_KINDS`)."""
+    if kind not in DATA_KINDS:
+        raise ValueError(f"unknown training data kind {kind!r} (known: {', '.join(DATA_KINDS)})")
+    if kind == "triplets":
+        from sim2real.data.triplets import TrainTriplets
+
+        return TrainTriplets(sources, real, cfg, seed, rank)
+    return TrainPairs(sources, real, cfg, seed, rank, pairs=kind == "view_pairs")
 
 
 class StepSampler(torch.utils.data.Sampler):

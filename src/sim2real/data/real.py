@@ -75,16 +75,30 @@ def random_resized_crop(image: np.ndarray, height: int, width: int, scale_min: f
                         rng: np.random.Generator) -> np.ndarray:
     """Resize ``image`` (h, w, 3) uint8 by ``max(height / h, width / w) * U[scale_min, scale_max]``
     (bilinear, area-filtered when shrinking) and crop a random ``height x width`` window."""
+    return random_resized_crops([image], height, width, scale_min, scale_max, rng)[0]
+
+
+def random_resized_crops(images: list[np.ndarray], height: int, width: int, scale_min: float, scale_max: float,
+                         rng: np.random.Generator) -> list[np.ndarray]:
+    """:func:`random_resized_crop` with one draw of scale and window for all ``images`` (frames of
+    one size, e.g. consecutive frames of a sequence, which must stay aligned)."""
     from PIL import Image
 
-    h, w = image.shape[:2]
+    h, w = images[0].shape[:2]
+    if any(im.shape[:2] != (h, w) for im in images):
+        raise UserError(f"frames of one sequence differ in size: {sorted({im.shape[:2] for im in images})}")
     factor = max(height / h, width / w) * float(rng.uniform(scale_min, scale_max))
     new_h, new_w = max(height, round(h * factor)), max(width, round(w * factor))
     if (new_h, new_w) != (h, w):
-        image = np.asarray(Image.fromarray(image).resize((new_w, new_h), Image.BILINEAR))
+        images = [np.asarray(Image.fromarray(im).resize((new_w, new_h), Image.BILINEAR)) for im in images]
     top = int(rng.integers(0, new_h - height + 1))
     left = int(rng.integers(0, new_w - width + 1))
-    return image[top : top + height, left : left + width]
+    return [im[top : top + height, left : left + width] for im in images]
+
+
+def to_network(crop: np.ndarray) -> np.ndarray:
+    """uint8 (H, W, 3) -> float32 (3, H, W) in [-1, 1]."""
+    return (crop.astype(np.float32).transpose(2, 0, 1) / 127.5) - 1.0
 
 
 class RealImages:
@@ -102,5 +116,38 @@ class RealImages:
     def sample(self, rng: np.random.Generator, height: int, width: int, scale_min: float, scale_max: float) -> np.ndarray:
         """A random crop as float32 (3, height, width) in [-1, 1]."""
         path = self.files[int(rng.integers(0, len(self.files)))]
-        crop = random_resized_crop(load_rgb(path), height, width, scale_min, scale_max, rng)
-        return (crop.astype(np.float32).transpose(2, 0, 1) / 127.5) - 1.0
+        return to_network(random_resized_crop(load_rgb(path), height, width, scale_min, scale_max, rng))
+
+
+SEQUENCES = "sequences"
+"""Sub-folder of a real folder that holds sequences: ``REAL/sequences/NAME/images/*.png|jpg``,
+consecutive frames in file-name order (the stand-in real domain writes this layout)."""
+
+
+class RealSequences:
+    """Consecutive real frames for the video methods: every ``REAL/sequences/*/images`` folder with
+    at least ``length`` frames is a sequence (docs/formats.md)."""
+
+    def __init__(self, folder: str | os.PathLike, length: int = 3):
+        self.folder = Path(folder)
+        root = self.folder / SEQUENCES
+        self.sequences = []
+        if root.is_dir():
+            for d in sorted(p for p in root.iterdir() if (p / "images").is_dir()):
+                files = sorted(f for f in (d / "images").iterdir() if f.suffix.lower() in EXTENSIONS and f.is_file())
+                if len(files) >= length:
+                    self.sequences.append(files)
+        if not self.sequences:
+            raise UserError(f"the real folder {self.folder} has no sequences of {length} or more frames "
+                            f"({self.folder}/{SEQUENCES}/NAME/images/*.png, consecutive frames in name order); "
+                            "video methods train on consecutive real frames")
+        self.length = length
+
+    def sample(self, rng: np.random.Generator, height: int, width: int, scale_min: float,
+               scale_max: float) -> list[np.ndarray]:
+        """``length`` consecutive frames of a random sequence, one random resized crop for all, as
+        float32 (3, height, width) in [-1, 1]."""
+        files = self.sequences[int(rng.integers(0, len(self.sequences)))]
+        start = int(rng.integers(0, len(files) - self.length + 1))
+        frames = [load_rgb(f) for f in files[start : start + self.length]]
+        return [to_network(c) for c in random_resized_crops(frames, height, width, scale_min, scale_max, rng)]

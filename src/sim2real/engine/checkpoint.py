@@ -8,15 +8,17 @@ key                content
 ``format``         ``"sim2real-train/1"``
 ``step``           iterations completed; a resumed run continues with this step
 ``config``         the effective TrainConfig as a plain dict
-``method``         the variant name (engine/method.py)
+``method``         the method name (sim2real/methods/); its settings are ``config.method``
 ``inputs``         ``{"scenes": [...], "real": ...}`` as given on the command line
-``scenes``         per scene: name, texture key, scene_dir, cached view files or None
-``gen``, ``dis``   state dicts of the generator stage (translator + all neural textures)
-                   and the discriminator stage
-``optimizers``     Adam state dicts by group name ('net', 'tex', 'dis')
+``scenes``         per scene: name, key (e.g. of its neural texture), scene_dir, cached
+                   view files or None
+``gen``, ``dis``   state dicts of the method's generator stage (for ``ours``: translator
+                   + all neural textures) and discriminator stage
+``optimizers``     Adam state dicts by group name (for ``ours``: 'net', 'tex', 'dis')
 ``schedulers``     StepLR state dicts by group name
 ``rng``            per rank: python, numpy, torch CPU (and CUDA) generator states
-``loss_schedule``  e.g. the current view-consistency weight (a function of ``step``)
+``loss_schedule``  the loss weights at ``step`` (a function of the step), and for ``ours``
+                   the current view-consistency weight
 ``world_size``     ranks that trained it
 =================  =================================================================
 

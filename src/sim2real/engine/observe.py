@@ -1,14 +1,16 @@
 """What a training run shows while it runs (rank 0 only).
 
 * a tqdm progress bar (iterations/s, ETA, last total losses);
-* TensorBoard scalars in ``RUN/tb``: every loss term (``gen/<name>``, ``dis/<name>``, means
-  over the logging interval), the totals, the learning rate of every optimiser group
-  (``lr/<group>``), the view-consistency weight (``schedule/vc_weight``) and iterations/s;
+* TensorBoard scalars in ``RUN/tb``: every unweighted loss term (``gen/<name>``,
+  ``dis/<name>``, means over the logging interval), the weighted totals (``gen/total``,
+  ``dis/total``), the weight of every term at the logged step (``weight/<name>``), the learning
+  rate of every optimiser group (``lr/<group>``) and iterations/s;
 * the same scalars as JSON lines in ``RUN/metrics.jsonl``;
-* image grids at intervals: ``RUN/samples/step_NNNNNNN.png`` and TensorBoard ``samples``.
-  Rows (method ``ours``): a_ref_i | a_tex_i | b_hat_i | a_rec (ref) | a_cyc (ref);
-  b (real) | a_hat (ref) | a_hat (tex) | b_rec | b_cyc; and once L_vc is on,
-  a_ref_j | b_hat_j | w_i(b_hat_j) | b_hat_i on the matched pixels | matched mask.
+* image grids at intervals: ``RUN/samples/step_NNNNNNN.png`` and TensorBoard ``samples``; the
+  method chooses the rows (:meth:`sim2real.methods.base.Method.image_rows`). For ``ours``:
+  a_ref_i | a_tex_i | b_hat_i | a_rec (ref) | a_cyc (ref); b (real) | a_hat (ref) | a_hat (tex)
+  | b_rec | b_cyc; and once L_vc is on, a_ref_j | b_hat_j | w_i(b_hat_j) | b_hat_i on the
+  matched pixels | matched mask.
 """
 
 from __future__ import annotations
@@ -91,8 +93,6 @@ class Observer:
         names = list(self._sums)
         means = (torch.stack([self._sums[k] for k in names]) / self._count).tolist()
         scalars = dict(zip(names, means))
-        scalars["gen/total"] = sum(v for k, v in scalars.items() if k.startswith("gen/"))
-        scalars["dis/total"] = sum(v for k, v in scalars.items() if k.startswith("dis/") and k != "dis/total")
         now = time.perf_counter()
         scalars["time/iterations_per_s"] = (step - self._n0) / max(now - self._t0, 1e-9)
         self._t0, self._n0 = now, step
@@ -103,7 +103,8 @@ class Observer:
         with open(self.out / "metrics.jsonl", "a") as f:
             f.write(json.dumps({"step": step, **scalars}) + "\n")
         if self.bar is not None:
-            self.bar.set_postfix(gen=f"{scalars['gen/total']:.3f}", dis=f"{scalars['dis/total']:.3f}", refresh=False)
+            self.bar.set_postfix(gen=f"{scalars.get('gen/total', 0.0):.3f}", dis=f"{scalars.get('dis/total', 0.0):.3f}",
+                                 refresh=False)
         self._sums, self._count = {}, 0
         return scalars
 

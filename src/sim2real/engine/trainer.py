@@ -1,20 +1,24 @@
-"""The training loop: one loop for every variant in engine/method.py.
+"""The training loop: one loop for every method (sim2real/methods/), which it runs without
+knowing which it is.
 
 One iteration (``step`` counts from 0):
 
 1. **Translate once.** ``out = method.translate(gen, batch, step)`` inside the generator
-   stage's forward (so DDP sees it): texture projection of view i, every translation,
-   reconstruction and cycle of the paper, and view j translated under ``torch.no_grad``.
+   stage's forward (so DDP sees it): every translation the method's losses need (for ``ours``:
+   texture projection of view i, every translation, reconstruction and cycle of the paper,
+   and view j under ``torch.no_grad``).
 2. **Discriminator step** on the *detached* fakes of ``out`` and the real inputs. The
    translations are not recomputed for it (the authors' MUNIT-based code computed them
    twice). The fakes come from the same generator weights and inputs that MUNIT's
    ``dis_update`` would use, so the schedule is unchanged.
-3. **Generator/texture step**: ``method.gen_losses`` with the discriminators just updated
-   (as MUNIT's ``gen_update`` after ``dis_update``), their parameters frozen meanwhile; Adam
-   on the networks (lr_net) and on the textures (lr_tex).
-4. Learning rates follow StepLR (halved every ``optim.lr_halve_every``); the
-   view-consistency weight is a function of the step (0 before ``loss.vc_start``, then
-   ``loss.vc``), so it is right after any resume.
+3. **Generator step**: ``method.gen_losses`` with the discriminators just updated (as MUNIT's
+   ``gen_update`` after ``dis_update``), their parameters frozen meanwhile; Adam on each of the
+   method's generator-side groups (for ``ours``: networks at lr_net, textures at lr_tex).
+4. The method returns **unweighted** terms; the trainer sums ``weight * term`` with the weights
+   of :meth:`Method.loss_weights` at this step (a pure function of the step, so it is right
+   after any resume) and logs terms (``gen/<name>``, ``dis/<name>``), weights
+   (``weight/<name>``) and the weighted totals (``gen/total``, ``dis/total``) apart.
+   Learning rates follow StepLR (halved every ``optim.lr_halve_every``).
 
 Every loss term is checked for NaN/inf before its optimiser steps; a non-finite loss stops the
 run with a UserError naming the last good checkpoint. On CUDA the forward passes run under
@@ -40,20 +44,16 @@ import numpy as np
 import torch
 
 from sim2real.config import AUTO_WORKERS_MAX, TrainConfig, to_dict, validate
-from sim2real.data.datasets import StepSampler, TrainPairs, resolve_scenes
+from sim2real.data.datasets import StepSampler, make_dataset, resolve_scenes
 from sim2real.data.real import RealImages
 from sim2real.engine import checkpoint as ckpt
 from sim2real.engine import distributed, precision
-from sim2real.engine.method import get_method
 from sim2real.engine.observe import Observer
 from sim2real.engine.runlock import LOCK_NAME, RunLock, close_inherited
 from sim2real.engine.stop import StopSignals, ignore_in_worker
 from sim2real.errors import UserError
+from sim2real.methods import get_method
 from sim2real.threads import single_thread_worker, usable_cores
-
-_HOST_KEYS = ("scene", "step")  # batch entries that stay on the CPU (read by Python)
-_IMAGE_KEYS = ("a_ref_i", "a_ref_j", "real")
-
 
 def resolve_device(name: str, local_rank: int = 0) -> torch.device:
     if name not in ("auto", "cpu", "cuda"):
@@ -65,6 +65,13 @@ def resolve_device(name: str, local_rank: int = 0) -> torch.device:
     device = torch.device("cuda", local_rank % torch.cuda.device_count())
     torch.cuda.set_device(device)
     return device
+
+
+def _state_method(state: dict) -> str:
+    """The method a checkpoint was trained with (its config section's tag; format-1 checkpoints
+    named the variant, whose method is 'ours')."""
+    section = state.get("config", {}).get("method")
+    return section.get("name", "?") if isinstance(section, dict) else "ours"
 
 
 def loader_workers(workers: int) -> int:
@@ -122,8 +129,9 @@ class Trainer:
         self.method = get_method(cfg)
         state = resume_state if resume_state is not None else (ckpt.load_checkpoint(resume) if resume is not None else None)
         if state is not None:
-            if state["method"] != cfg.method:
-                raise UserError(f"checkpoint {resume} was trained with method '{state['method']}', not '{cfg.method}'")
+            trained = _state_method(state)
+            if trained != self.method.name:
+                raise UserError(f"checkpoint {resume} was trained with method '{trained}', not '{self.method.name}'")
             scenes = scenes if scenes else state["inputs"]["scenes"]
             real = real if real else state["inputs"]["real"]
         if not scenes:
@@ -145,6 +153,9 @@ class Trainer:
 
         self.sources = resolve_scenes(scenes, cfg.data.height, cfg.data.width)
         self.real = RealImages(real)
+        # the method's training data (a real folder without what it needs is refused here, before
+        # the run folder is touched)
+        self.dataset = make_dataset(self.method.data, self.sources, self.real, cfg.data, cfg.seed, self.dist.rank)
         self.out = Path(out)
         self.ckpt_dir = self.out / "checkpoints"
         self.lock = RunLock(self.out)
@@ -187,10 +198,7 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.gen, self.dis = self.method.build(self.sources)
         if state is not None:
-            keys = [s["key"] for s in state["scenes"]]
-            if keys != self.gen.scene_keys:
-                raise UserError(f"checkpoint {resume} was trained on scenes {[s['name'] for s in state['scenes']]}, "
-                                f"not {[s.name for s in self.sources]}")
+            self.method.check_resume(state, self.sources, resume)
         self.gen.to(self.device)
         self.dis.to(self.device)
         if self.channels_last:  # conv weights channels-last (4-D tensors only: the 5-D textures stay as they are)
@@ -210,10 +218,8 @@ class Trainer:
         if self.dist.is_main:
             save_yaml(cfg, self.out / "config.yaml")
 
-        # with several textures, those of scenes that no rank sampled in a step get no gradient
-        self.gen_ddp = distributed.wrap(self.gen, self.dist, self.device, find_unused=len(self.gen.textures) > 1)
+        self.gen_ddp = distributed.wrap(self.gen, self.dist, self.device, find_unused=self.method.ddp_find_unused(self.gen))
         self.dis_ddp = distributed.wrap(self.dis, self.dist, self.device, find_unused=False)
-        self.dataset = TrainPairs(self.sources, self.real, cfg.data, cfg.seed, self.dist.rank)
         self.progress = progress
         self.last_out: dict | None = None
         """The translations of the latest step (for image grids)."""
@@ -245,9 +251,9 @@ class Trainer:
             "format": ckpt.FORMAT,
             "step": self.step,
             "config": to_dict(self.cfg),
-            "method": self.cfg.method,
+            "method": self.method.name,
             "inputs": self.inputs,
-            "scenes": [{**s.to_json(), "key": k} for s, k in zip(self.sources, self.gen.scene_keys)],
+            "scenes": self.method.scenes_record(self.gen, self.sources),
             "gen": self.gen.state_dict(),
             "dis": self.dis.state_dict(),
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
@@ -278,18 +284,21 @@ class Trainer:
     def _to_device(self, batch: dict) -> dict:
         out = {}
         for k, v in batch.items():
-            if k in _HOST_KEYS:  # Python lists: read on the host, never moved (not even by DDP)
+            if k in self.method.host_keys:  # Python lists: read on the host, never moved (not even by DDP)
                 out[k] = v.tolist()
                 continue
             v = v.to(self.device, non_blocking=True)
-            if self.channels_last and k in _IMAGE_KEYS:
+            if self.channels_last and k in self.method.image_keys:
                 v = v.contiguous(memory_format=torch.channels_last)
             out[k] = v
         return out
 
-    def _update(self, losses: dict[str, torch.Tensor], optimizers: list) -> torch.Tensor:
-        """One optimiser step on the sum of ``losses``; returns that sum, detached."""
-        total = sum(losses.values())
+    def _update(self, losses: dict[str, torch.Tensor], weights: dict[str, float], optimizers: list) -> torch.Tensor:
+        """One optimiser step on ``sum(weights[k] * losses[k])``; returns that sum, detached."""
+        missing = [k for k in losses if k not in weights]
+        if missing:
+            raise KeyError(f"method '{self.method.name}' gives no weight for its loss terms {missing}")
+        total = sum(weights[k] * v for k, v in losses.items())
         for o in optimizers:
             o.zero_grad(set_to_none=True)
         total.backward()
@@ -313,19 +322,21 @@ class Trainer:
             p.requires_grad_(flag)
 
     def train_step(self, batch: dict, step: int) -> dict[str, torch.Tensor]:
-        """One iteration; returns the named loss terms (``dis/...``, ``gen/...``)."""
+        """One iteration; returns the named, unweighted loss terms (``dis/...``, ``gen/...``) and
+        the weighted totals (``dis/total``, ``gen/total``)."""
         gen_opts = [self.optimizers[g.name] for g in self.groups if g.side == "gen"]
         dis_opts = [self.optimizers[g.name] for g in self.groups if g.side == "dis"]
+        weights = self.method.loss_weights(step)
         with self._autocast():
             out = self.gen_ddp(self.method.translate, batch, step)
             d_losses = self.dis_ddp(self.method.dis_losses, batch, out)
-        d_total = self._update(d_losses, dis_opts)
+        d_total = self._update(d_losses, weights, dis_opts)
 
         self._set_dis_grad(False)
         try:
             with self._autocast():
                 g_losses = self.method.gen_losses(self.dis, batch, out, step)
-            g_total = self._update(g_losses, gen_opts)
+            g_total = self._update(g_losses, weights, gen_opts)
         finally:
             self._set_dis_grad(True)
         for s in self.schedulers.values():
@@ -333,6 +344,7 @@ class Trainer:
         self.last_out = out
         losses = {**{f"dis/{k}": v.detach() for k, v in d_losses.items()}, **{f"gen/{k}": v.detach() for k, v in g_losses.items()}}
         self._check_finite(losses, (d_total, g_total), step)
+        losses.update({"dis/total": d_total, "gen/total": g_total})
         return losses
 
     def _loader(self):
@@ -387,7 +399,7 @@ class Trainer:
                         stop = self.step
                     if self.step % cfg.log_every == 0 or self.step == stop:
                         lrs = {k: s.get_last_lr()[0] for k, s in self.schedulers.items()}
-                        obs.log(self.step, lrs, {"schedule/vc_weight": self.method.vc_weight(step)})
+                        obs.log(self.step, lrs, {f"weight/{k}": v for k, v in self.method.loss_weights(step).items()})
                     if step == first or self.step % cfg.image_every == 0:
                         obs.images(self.step, self.method.image_rows(batch, self.last_out))
                     self.last_out = None

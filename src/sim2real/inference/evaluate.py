@@ -346,7 +346,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     metrics = {
         "format": FORMAT,
         "run": {"dir": str(Path(run).resolve()), "checkpoint": str(model.checkpoint.resolve()), "step": model.step,
-                "method": model.cfg.method, "device": str(model.device), "amp_bf16": model.amp,
+                "method": model.method.name, "device": str(model.device), "amp_bf16": model.amp,
                 "train_height": H, "train_width": W},
         "settings": {**dataclasses.asdict(s), "fid_weights": status.get("path"), "orb": orb_settings.to_json()},
         "inputs": {"scenes": inputs_scenes,
@@ -423,8 +423,9 @@ def _sequence_metrics(model, scene: str, scene_dir: Path, cameras, caster, ancho
     meter = MotionMeter()
     prev = None
     bar = tqdm(total=T, desc=f"sequence {scene}", unit="frame", disable=not progress)
+    seq = model.sequence(scene, s.batch)
     for chunk in chunked(iter_gbuffers(scene_dir, cameras, s.workers, s.batch, caster=caster), s.batch):
-        for g, f in zip(chunk, model.translate_gbuffers(scene, chunk, s.batch)):
+        for g, f in zip(chunk, seq.translate(chunk)):
             t = len(points)
             if prev is not None:
                 fl, vis = gt_flow(prev, g)

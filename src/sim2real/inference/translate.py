@@ -1,20 +1,23 @@
 """Trained run -> translated frames: the reusable model API and ``sim2real translate``.
 
-:func:`load_run` restores the generator side of a training run (translator + one neural texture
-per scene) from ``RUN/checkpoints/last.pt`` (or a given checkpoint) and returns a
-:class:`TrainedModel`. Its :meth:`TrainedModel.translate_gbuffers` turns G-buffers of one of the
-run's scenes into uint8 RGB frames exactly as the training computed ``b_hat`` for view i:
+:func:`load_run` restores the generator side of a training run from ``RUN/checkpoints/last.pt``
+(or a given checkpoint) through the run's own method (sim2real/methods/) and returns a
+:class:`TrainedModel`. :meth:`TrainedModel.sequence` translates the frames of one sequence in
+order, chunk after chunk, with the method's :class:`~sim2real.methods.base.SequenceTranslator`
+(a time-dependent method carries its state across chunks); :meth:`TrainedModel.translate_gbuffers`
+translates unrelated views. For ``ours`` a frame is computed exactly as the training computed
+``b_hat`` for view i:
 
-    x_a = cat(a_tex, a_ref)        a_tex = Method.a_tex (triplanar texture projection, tanh)
+    x_a = cat(a_tex, a_ref)        a_tex = triplanar texture projection, tanh
     b_hat = G_B(E_A(x_a))          a_ref = reference rendering in [-1, 1]
 
 in eval mode under ``torch.inference_mode``; on CUDA with bf16 autocast (when the run's
 ``amp`` is on) and channels-last images and weights, on the CPU in fp32. Frames are batched;
-each frame depends only on its own view (instance norm is per sample), so the model is
-time-independent: the same view always gives the same frame (bit-identical for a given batch
-size and device: every network call gets exactly ``batch`` samples, see
-:meth:`TrainedModel.translate_gbuffers`). Sides that are not multiples of
-``2**generator.downsamplings`` are padded (edge replicate) for the networks and cropped back.
+for a time-independent method each frame depends only on its own view (instance norm is per
+sample): the same view always gives the same frame (bit-identical for a given batch size and
+device: every network call gets exactly ``batch`` samples, see :class:`FrameSequence`). Sides
+that are not multiples of ``2**generator.downsamplings`` are padded (edge replicate) for the
+networks and cropped back.
 
 :func:`translate_sequence` is the command: it streams a trajectory (ray-cast in chunks,
 in-process or in a process pool) or a views folder through the model and writes
@@ -34,7 +37,6 @@ from typing import Sequence
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from sim2real.engine import precision
 from sim2real.errors import UserError
@@ -74,9 +76,6 @@ def _scene_classes(scene_dir: Path | None) -> tuple[str, ...] | None:
 class TrainedModel:
     """The generator side of a trained run, ready for inference (see the module docstring)."""
 
-    time_independent = True
-    """Each frame depends only on its own view: a revisited view is translated identically."""
-
     def __init__(self, cfg, method, gen, device: torch.device, scenes: list[SceneInfo], checkpoint: Path, step: int):
         self.cfg = cfg
         self.method = method
@@ -86,7 +85,11 @@ class TrainedModel:
         self.infos = {s.name: s for s in scenes}
         self.checkpoint = checkpoint
         self.step = step
-        self.multiple = 2 ** cfg.generator.downsamplings
+
+    @property
+    def time_independent(self) -> bool:
+        """Each frame depends only on its own view (the method's property)."""
+        return self.method.time_independent
 
     @property
     def scenes(self) -> list[str]:
@@ -115,68 +118,64 @@ class TrainedModel:
             raise UserError(f"scene '{name}'{src} has {len(classes)} objects, but the run's texture of '{name}' "
                             f"has {info.num_objects}")
 
-    def _autocast(self):
-        return precision.autocast(self.device, self.amp)
-
-    def _batch(self, gbuffers: list[GBuffer], index: int) -> dict[str, torch.Tensor]:
-        from sim2real.render.reference import reference_rendering
-
-        dev = self.device
-        a_ref = np.stack([reference_rendering(g).transpose(2, 0, 1) for g in gbuffers]) * 2.0 - 1.0
-        oid = np.stack([g.object_id.astype(np.int64) for g in gbuffers])
-        pts = np.stack([np.asarray(g.points, dtype=np.float32) for g in gbuffers])
-        nrm = np.stack([np.asarray(g.normal, dtype=np.float32) for g in gbuffers])
-        return {
-            "scene": torch.full((len(gbuffers),), index, dtype=torch.long),  # stays on the CPU (read by Python)
-            "a_ref_i": torch.from_numpy(a_ref.astype(np.float32)).to(dev),
-            "object_id_i": torch.from_numpy(oid).to(dev),
-            "points_i": torch.from_numpy(pts).to(dev),
-            "normal_i": torch.from_numpy(nrm).to(dev),
-        }
-
-    @torch.inference_mode()
-    def _translate(self, gbuffers: list[GBuffer], index: int, pad_to: int) -> list[np.ndarray]:
-        h, w = gbuffers[0].height, gbuffers[0].width
-        n = len(gbuffers)
-        # Every call sees exactly `pad_to` samples (the last frame repeated): on the CPU oneDNN
-        # picks its convolution kernels by batch size, which moved single pixels by one 8-bit
-        # level; with one shape a view's frame never depends on what shares its batch.
-        batch = self._batch(gbuffers + [gbuffers[-1]] * (pad_to - n), index)
-        t = self.gen.translator
-        with self._autocast():
-            a_tex = self.method.a_tex(self.gen, batch, "i").to(batch["a_ref_i"].dtype)
-            x_a = t.join_a(a_tex, batch["a_ref_i"])
-            ph, pw = (-h) % self.multiple, (-w) % self.multiple
-            if ph or pw:
-                x_a = F.pad(x_a, (0, pw, 0, ph), mode="replicate")
-            x_a = x_a.contiguous(memory_format=self.method.memory_format)
-            b_hat = t.dec_b(t.enc_a(x_a))[..., :h, :w]
-        u8 = ((b_hat.float().clamp(-1.0, 1.0) + 1.0) * 127.5).round().to(torch.uint8)
-        u8 = u8[:n].permute(0, 2, 3, 1).cpu().numpy()
-        return [np.ascontiguousarray(f) for f in u8]
+    def sequence(self, scene_name: str, batch: int = DEFAULT_BATCH) -> "FrameSequence":
+        """A translator for one sequence of ``scene_name``: feed it consecutive chunks of G-buffers
+        (:meth:`FrameSequence.translate`); a time-dependent method carries its state across chunks."""
+        return FrameSequence(self, self.scene(scene_name), batch)
 
     def translate_gbuffers(self, scene_name: str, gbuffers: Sequence[GBuffer], batch: int = DEFAULT_BATCH) -> list[np.ndarray]:
-        """Translate G-buffers of scene ``scene_name`` -> uint8 (H, W, 3) RGB frames, in order.
+        """Translate unrelated views of scene ``scene_name`` -> uint8 (H, W, 3) RGB frames, in order;
+        each view on its own (for a time-dependent method, as the first frame of a sequence).
 
         Frames of one size go through the networks ``batch`` at a time; a shorter last batch is
         padded to ``batch`` so that, for a given ``batch`` and device, a view always gives
         bit-identical pixels wherever it appears (time independence)."""
-        info = self.scene(scene_name)
-        gbuffers = list(gbuffers)
-        if not gbuffers:
-            return []
+        if self.time_independent:
+            return self.sequence(scene_name, batch).translate(gbuffers)
+        return [self.sequence(scene_name, batch).translate([g])[0] for g in gbuffers]
+
+
+class FrameSequence:
+    """One sequence through a :class:`TrainedModel` (the method's
+    :class:`~sim2real.methods.base.SequenceTranslator` in eval mode, inference mode and autocast)."""
+
+    def __init__(self, model: TrainedModel, info: SceneInfo, batch: int):
         if batch < 1:
             raise UserError(f"batch must be >= 1, got {batch}")
+        self.model = model
+        self.info = info
+        self.batch = batch
+        self.translator = model.method.sequence(model.gen)
+
+    @torch.inference_mode()
+    def _chunk(self, gbuffers: list[GBuffer]) -> list[np.ndarray]:
+        m = self.model
+        n = len(gbuffers)
+        # Every call of a stateless method sees exactly `batch` samples (the last frame repeated):
+        # on the CPU oneDNN picks its convolution kernels by batch size, which moved single pixels
+        # by one 8-bit level; with one shape a view's frame never depends on what shares its
+        # batch. A time-dependent method sees only the real frames (a repeat would be a new frame).
+        pad_to = self.batch if m.method.time_independent else n
+        batch = m.method.inference_batch(gbuffers + [gbuffers[-1]] * (pad_to - n), self.info.index, m.device)
+        with precision.autocast(m.device, m.amp):
+            b_hat = self.translator.push(batch)
+        u8 = ((b_hat.float().clamp(-1.0, 1.0) + 1.0) * 127.5).round().to(torch.uint8)
+        u8 = u8[:n].permute(0, 2, 3, 1).cpu().numpy()
+        return [np.ascontiguousarray(f) for f in u8]
+
+    def translate(self, gbuffers: Sequence[GBuffer]) -> list[np.ndarray]:
+        """The next frames of the sequence -> uint8 (H, W, 3) RGB frames, in order."""
+        gbuffers = list(gbuffers)
         for cls in {tuple(g.classes) for g in gbuffers}:
-            self.check_classes(scene_name, cls)
+            self.model.check_classes(self.info.name, cls)
         out: list[np.ndarray] = []
         i = 0
         while i < len(gbuffers):
             size = (gbuffers[i].height, gbuffers[i].width)
             j = i
-            while j < len(gbuffers) and j - i < batch and (gbuffers[j].height, gbuffers[j].width) == size:
+            while j < len(gbuffers) and j - i < self.batch and (gbuffers[j].height, gbuffers[j].width) == size:
                 j += 1
-            out.extend(self._translate(gbuffers[i:j], info.index, batch))
+            out.extend(self._chunk(gbuffers[i:j]))
             i = j
         return out
 
@@ -208,14 +207,10 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
     method and scene list come from the checkpoint itself; the scene folders are not needed
     (the textures hold their objects' bounding boxes).
     """
-    from torch import nn
-
     from sim2real.config import TrainConfig, from_dict
     from sim2real.engine.checkpoint import load_checkpoint
-    from sim2real.engine.method import GenStage, get_method
     from sim2real.engine.trainer import resolve_device
-    from sim2real.models.translator import build_models
-    from sim2real.texture.neural_texture import NeuralTexture
+    from sim2real.methods import get_method
 
     path = find_checkpoint(run_dir, checkpoint)
     state = load_checkpoint(path)
@@ -227,22 +222,11 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
         raise UserError(f"checkpoint {path} lacks '{e.args[0]}'") from None
     method = get_method(cfg)
     dev = device if isinstance(device, torch.device) else resolve_device(str(device))
-
-    translator = build_models(cfg).translator
-    textures, keys, infos = nn.ModuleDict(), [], []
-    for k, s in enumerate(scenes_raw):
-        key = s["key"]
-        keys.append(key)
-        n_obj = None
-        if method.uses_texture:
-            tex = gen_state.get(f"textures.{key}.texture")
-            if tex is None:
-                raise UserError(f"checkpoint {path} has no texture for scene '{s['name']}'")
-            n_obj = int(tex.shape[0])
-            textures[key] = NeuralTexture(n_obj, np.zeros((n_obj, 2, 3), np.float32), None, cfg.texture)
+    gen, objects = method.inference_stage(state, path)
+    infos = []
+    for k, (s, n_obj) in enumerate(zip(scenes_raw, objects)):
         scene_dir = Path(s["scene_dir"]) if s.get("scene_dir") else None
-        infos.append(SceneInfo(str(s["name"]), key, k, scene_dir, _scene_classes(scene_dir), n_obj))
-    gen = GenStage(translator, textures, keys)
+        infos.append(SceneInfo(str(s["name"]), s["key"], k, scene_dir, _scene_classes(scene_dir), n_obj))
     try:
         gen.load_state_dict(gen_state)
     except RuntimeError as e:
@@ -251,7 +235,9 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
     gen.to(dev)
     if precision.mixed_precision(dev):
         method.memory_format = torch.channels_last
-        gen.translator.to(memory_format=torch.channels_last)
+        for m in gen.children():
+            if not isinstance(m, torch.nn.ModuleDict):
+                m.to(memory_format=torch.channels_last)
     gen.eval()
     gen.requires_grad_(False)
     return TrainedModel(cfg, method, gen, dev, infos, path, int(state.get("step", 0)))
@@ -329,6 +315,7 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
     """
     from tqdm import tqdm
 
+    from sim2real.config import to_dict
     from sim2real.fileio import atomic_write_image, atomic_write_json, prepare_output_dir
     from sim2real.inference.export import export_ground_truth
     from sim2real.inference.frames import LazyGBuffers, chunked, iter_gbuffers, iter_view_files
@@ -357,11 +344,12 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
 
         def stream():
             i = 0
+            seq = model.sequence(source.scene_name, batch)  # one sequence: a stateful method continues
             for chunk in chunked(gbuffers, batch):
                 if source.cameras is not None:
                     for k, g in enumerate(chunk):
                         g.save(gt_paths[i + k], durable=False)
-                for f in model.translate_gbuffers(source.scene_name, chunk, batch):
+                for f in seq.translate(chunk):
                     if not size:
                         size.append(f.shape[:2])
                     elif f.shape[:2] != size[0]:
@@ -389,7 +377,8 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
         "format": FORMAT,
         "run_checkpoint": str(model.checkpoint.resolve()),
         "step": model.step,
-        "method": model.cfg.method,
+        "method": model.method.name,
+        "method_config": to_dict(model.cfg.method),
         "scene": source.scene_name,
         "source": source.description,
         "frames": count,

@@ -129,7 +129,8 @@ class Models(NamedTuple):
 
 def build_models(cfg: TrainConfig, n_features: int | None = None) -> Models:
     """Translator (Kaiming init) and D_A, D_B (N(0, 0.02) init) for ``cfg``.
-    ``n_features`` defaults to ``cfg.texture.features``."""
-    n = cfg.texture.features if n_features is None else n_features
+    ``n_features`` (texture channels of domain A) defaults to the ``ours`` section's
+    ``cfg.method.texture.features``."""
+    n = cfg.method.texture.features if n_features is None else n_features
     translator = Translator(n, cfg.generator)
     return Models(translator, MsImageDis(n + 3, cfg.discriminator), MsImageDis(3, cfg.discriminator))

@@ -78,6 +78,29 @@ def _poses(caster, n: int, K: np.ndarray, height: int, width: int, rng: np.rando
             raise UserError(f"could not place a camera in scene '{scene.name}' that sees the liver; check its camera region")
 
 
+def linear_path(caster, frames: int, height: int, width: int, fov_x_deg: float, step_mm: float,
+                rng: np.random.Generator, max_tries: int = 200) -> list[Camera]:
+    """A short random linear camera path (ReCycle's and OF-UNIT's training triplets, paper
+    supplementary): a random training pose (:func:`sample_poses`' rules) whose eye and look-at
+    point both move ``step_mm`` per frame along one random direction, so the view pans without
+    turning. Every eye stays in free space; the path is redrawn otherwise."""
+    scene = caster.scene
+    K = intrinsics_from_fov(width, height, fov_x_deg)
+    for _ in range(max_tries):
+        first = next(_poses(caster, 1, K, height, width, rng, max_tries))
+        c2w = first.camera_to_world
+        eye, forward = c2w[:3, 3], c2w[:3, 2]
+        target = eye + forward * 50.0
+        d = rng.normal(size=3)
+        d /= max(np.linalg.norm(d), 1e-12)
+        eyes = eye + np.arange(frames)[:, None] * step_mm * d
+        if not caster.free_space(eyes).all():
+            continue
+        return [Camera(K, look_at(e, target + (e - eye), scene.up), height, width) for e in eyes]
+    raise UserError(f"could not place a linear camera path of {frames} frames in scene '{scene.name}'; "
+                    "check its camera region")
+
+
 @dataclass
 class Trajectory:
     """Per-frame cameras of a sequence plus its frame rate."""

@@ -1,0 +1,49 @@
+"""Methods as plug-ins: each module registers a :class:`~sim2real.methods.base.Method` and its
+config section; named presets of a method (the paper's ablations) are values of that section.
+
+=================  ==========  ==============================================================
+preset             method      what it is
+=================  ==========  ==============================================================
+``ours``           ours        the paper: neural texture + a_ref, view consistency (angle)
+``ours_no_vc``     ours        lambda_vc = 0
+``ours_l1_vc``     ours        L1 instead of the angle in L_vc (paper Fig. 7)
+``ours_no_tex_vc`` ours        no texture (domain A = a_ref, 3 channels), lambda_vc = 0
+=================  ==========  ==============================================================
+"""
+
+from __future__ import annotations
+
+from sim2real.config import METHOD_CONFIGS, MethodConfig, TrainConfig, override
+from sim2real.errors import UserError
+from sim2real.methods.base import Method
+from sim2real.methods.ours import Ours
+
+METHODS: dict[str, type[Method]] = {m.name: m for m in (Ours,)}
+"""Registered methods by name."""
+
+METHOD_PRESETS: dict[str, tuple[str, tuple[str, ...]]] = {
+    "ours": ("ours", ()),
+    "ours_no_vc": ("ours", ("vc=0",)),
+    "ours_l1_vc": ("ours", ("vc_kind=l1",)),
+    "ours_no_tex_vc": ("ours", ("texture.features=0", "vc=0")),
+}
+"""Named presets: (method, assignments to its config section)."""
+
+
+def method_config(name: str, size: str = "paper") -> MethodConfig:
+    """The config section of method preset ``name`` at size preset ``size``."""
+    if name not in METHOD_PRESETS:
+        raise UserError(f"unknown method '{name}' (choose from {', '.join(METHOD_PRESETS)})")
+    method, sets = METHOD_PRESETS[name]
+    return override(METHOD_CONFIGS[method].for_size(size), list(sets))
+
+
+def get_method(cfg: TrainConfig) -> Method:
+    """The method object for ``cfg`` (its class is the one registered under the section's name)."""
+    name = type(cfg.method).name
+    if name not in METHODS:
+        raise UserError(f"unknown method '{name}' (choose from {', '.join(METHODS)})")
+    return METHODS[name](cfg)
+
+
+__all__ = ["METHODS", "METHOD_PRESETS", "Method", "get_method", "method_config"]

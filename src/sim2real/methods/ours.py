@@ -1,0 +1,240 @@
+"""``ours`` (the paper): neural texture + reference rendering -> MUNIT without styles, + L_vc.
+
+Its named presets (:data:`sim2real.methods.METHOD_PRESETS`) are the paper's ablations, each a
+value of this section, not a separate code path:
+
+* ``ours_no_vc``: ``vc = 0`` (no view j is even rendered: the data are single views);
+* ``ours_l1_vc``: ``vc_kind = 'l1'`` (L1 instead of the angle, paper Fig. 7);
+* ``ours_no_tex_vc``: ``texture.features = 0, vc = 0``: domain A is a_ref alone (3 channels),
+  which is SSIM-MUNIT without styles or noise, as the paper defines the ablation.
+
+One iteration (``step``): view i's texture is projected (``a_tex = tanh(T(s))``), domain A is
+``x_a = cat(a_tex, a_ref)``; every translation of MUNIT's ``gen_update`` is computed once;
+view j is translated without gradient and warped into view i for L_vc once its weight is on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from sim2real.config import MethodConfig, TextureConfig, register_method_config
+from sim2real.losses import l1, lsgan_gen_loss, ms_ssim_loss, view_consistency, warp_backward
+from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, rgb
+from sim2real.methods.common import dis_terms, pad_apply, translator_terms, translator_weights
+
+
+@register_method_config
+@dataclass
+class OursConfig(MethodConfig):
+    """The paper's method."""
+
+    name = "ours"
+    texture: TextureConfig = field(default_factory=TextureConfig)
+    vc: float = 20.0
+    """View-consistency weight once switched on (0: no view consistency, no view j)."""
+    vc_start: int = 10_000
+    """Iteration from which the view-consistency weight is ``vc`` (0 before)."""
+    vc_kind: str = "angle"
+    """'angle' (lighting invariant, paper) or 'l1' (the ablation)."""
+
+    @classmethod
+    def for_size(cls, size: str) -> "OursConfig":
+        if size == "small":
+            return cls(texture=TextureConfig(size=256), vc_start=2_000)
+        if size == "tiny":
+            return cls(texture=TextureConfig(size=64), vc_start=5)
+        return cls()
+
+    def check(self, cfg, need) -> None:
+        import math
+
+        from sim2real.losses.consistency import VC_KINDS
+        from sim2real.texture.neural_texture import MAPPINGS
+
+        t = self.texture
+        need(t.size >= 1, "method.texture.size", ">= 1", t.size)
+        need(t.features >= 0, "method.texture.features", ">= 0 (0: no texture)", t.features)
+        need(t.mapping in MAPPINGS, "method.texture.mapping", "one of " + ", ".join(MAPPINGS), t.mapping)
+        need(math.isfinite(self.vc) and self.vc >= 0, "method.vc", "a finite weight >= 0", self.vc)
+        need(self.vc_start >= 0, "method.vc_start", ">= 0", self.vc_start)
+        need(self.vc_kind in VC_KINDS, "method.vc_kind", "one of " + ", ".join(VC_KINDS), self.vc_kind)
+
+
+class GenStage(Stage):
+    """Translator (E_A, G_A, E_B, G_B) and one neural texture per scene (keys: scene keys)."""
+
+    def __init__(self, translator: nn.Module, textures: nn.ModuleDict, scene_keys: list[str]):
+        super().__init__()
+        self.translator = translator
+        self.textures = textures
+        self.scene_keys = list(scene_keys)
+
+
+class DisStage(Stage):
+    def __init__(self, dis_a: nn.Module, dis_b: nn.Module):
+        super().__init__()
+        self.dis_a = dis_a
+        self.dis_b = dis_b
+
+
+class Ours(Method):
+    """See the module docstring."""
+
+    name = "ours"
+    config_cls = OursConfig
+    image_keys = ("a_ref_i", "a_ref_j", "real")
+
+    @property
+    def features(self) -> int:
+        return self.mc.texture.features
+
+    @property
+    def data(self) -> str:
+        return "view_pairs" if self.mc.vc > 0 else "views"
+
+    # --- construction ----------------------------------------------------------------------------
+
+    def _stage(self, keys: list[str], textures: nn.ModuleDict) -> GenStage:
+        from sim2real.models.translator import Translator
+
+        return GenStage(Translator(self.features, self.cfg.generator), textures, keys)
+
+    def build(self, sources) -> tuple[GenStage, DisStage]:
+        from sim2real.models.discriminator import MsImageDis
+        from sim2real.render.reference import class_albedo
+        from sim2real.texture.neural_texture import NeuralTexture
+
+        keys, textures = self.scene_keys(sources), nn.ModuleDict()
+        if self.features:
+            for key, src in zip(keys, sources):
+                textures[key] = NeuralTexture(len(src.classes), src.bounds, class_albedo(src.classes), self.mc.texture)
+        gen = self._stage(keys, textures)
+        d = self.cfg.discriminator
+        return gen, DisStage(MsImageDis(self.features + 3, d), MsImageDis(3, d))
+
+    def optim_groups(self, gen: GenStage, dis: DisStage) -> list[OptimGroup]:
+        o = self.cfg.optim
+        groups = [OptimGroup("net", list(gen.translator.parameters()), o.lr_net, "gen")]
+        if self.features:
+            groups.append(OptimGroup("tex", list(gen.textures.parameters()), o.lr_tex, "gen"))
+        groups.append(OptimGroup("dis", list(dis.parameters()), o.lr_net, "dis"))
+        return groups
+
+    def ddp_find_unused(self, gen: GenStage) -> bool:
+        # with several textures, those of scenes that no rank sampled in a step get no gradient
+        return len(gen.textures) > 1
+
+    # --- schedules -------------------------------------------------------------------------------
+
+    def vc_weight(self, step: int) -> float:
+        return float(self.mc.vc) if step >= self.mc.vc_start else 0.0
+
+    def loss_weights(self, step: int) -> dict[str, float]:
+        w = translator_weights(self.cfg)
+        w["vc"] = self.vc_weight(step)
+        return w
+
+    def schedule_state(self, step: int) -> dict:
+        return {**super().schedule_state(step), "vc_weight": self.vc_weight(step), "vc_start": self.mc.vc_start,
+                "vc": self.mc.vc}
+
+    # --- one iteration -----------------------------------------------------------------------------
+
+    def a_tex(self, gen: GenStage, batch: Batch, tag: str) -> torch.Tensor | None:
+        """Projected texture of view ``tag`` (B, N, H, W), None without texture; each sample uses
+        its scene's texture."""
+        if not self.features:
+            return None
+        oid, pts, nrm = batch[f"object_id_{tag}"], batch[f"points_{tag}"], batch[f"normal_{tag}"]
+        scenes = batch["scene"]  # a host list: no device sync
+        scenes = scenes.tolist() if torch.is_tensor(scenes) else list(scenes)
+        if len(set(scenes)) == 1:
+            return gen.textures[gen.scene_keys[scenes[0]]](oid, pts, nrm)
+        parts = [gen.textures[gen.scene_keys[s]](oid[b : b + 1], pts[b : b + 1], nrm[b : b + 1]) for b, s in enumerate(scenes)]
+        return torch.cat(parts)
+
+    def x_a(self, gen: GenStage, batch: Batch, tag: str) -> torch.Tensor:
+        """Domain-A image of view ``tag``: ``cat(a_tex, a_ref)``, or a_ref alone without texture."""
+        a_ref = batch[f"a_ref_{tag}"]
+        tex = self.a_tex(gen, batch, tag)
+        return a_ref if tex is None else gen.translator.join_a(tex.to(a_ref.dtype), a_ref)
+
+    def translate(self, gen: GenStage, batch: Batch, step: int) -> Out:
+        t = gen.translator
+        x_a = self.x_a(gen, batch, "i").contiguous(memory_format=self.memory_format)
+        out = translator_terms(t, x_a, batch["real"])
+        if self.vc_weight(step) > 0:
+            with torch.no_grad():  # view j: translated without gradient, no L_translation
+                b_hat_j = t.dec_b(t.enc_a(self.x_a(gen, batch, "j"))).float()
+                warped, mask = warp_backward(b_hat_j, batch["uv_ij"], batch["visible_ij"])
+            out.update(b_hat_j=b_hat_j, b_hat_j_warped=warped, vc_mask=mask)
+        return out
+
+    def dis_losses(self, dis: DisStage, batch: Batch, out: Out) -> dict[str, torch.Tensor]:
+        return dis_terms(dis, out)
+
+    def gen_losses(self, dis: DisStage, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
+        f = {k: v.float() for k, v in out.items() if v.is_floating_point()}
+        L, n = self.cfg.loss, self.features
+        losses = {
+            "adv_a": lsgan_gen_loss([s.float() for s in dis.dis_a(out["a_hat"])]),
+            "adv_b": lsgan_gen_loss([s.float() for s in dis.dis_b(out["b_hat"])]),
+            "rec_a": l1(f["a_rec"], f["x_a"]),
+            "rec_b": l1(f["b_rec"], f["x_b"]),
+            "cyc_a": l1(f["a_cyc"], f["x_a"]),
+            "cyc_b": l1(f["b_cyc"], f["x_b"]),
+            "content_a": l1(f["c_a_rec"], f["c_a"]),
+            "content_b": l1(f["c_b_rec"], f["c_b"]),
+        }
+        if L.ssim_ab:
+            losses["ssim_ab"] = ms_ssim_loss(f["x_a"][:, n:], f["b_hat"], L.ssim_win, L.ssim_scales)
+        if L.ssim_ba:
+            losses["ssim_ba"] = ms_ssim_loss(f["x_b"], f["a_hat"][:, n:], L.ssim_win, L.ssim_scales)
+        if "b_hat_j_warped" in out:
+            losses["vc"] = view_consistency(self.mc.vc_kind, f["b_hat"], out["b_hat_j_warped"], out["vc_mask"])
+        return losses
+
+    def image_rows(self, batch: Batch, out: Out) -> list[list[torch.Tensor]]:
+        n = self.features
+        ref, tex = (lambda x: rgb(x[:, n:])), (lambda x: rgb(x[:, :n]) if n else rgb(x[:, n:]))
+        rows = [
+            [ref(out["x_a"]), tex(out["x_a"]), rgb(out["b_hat"]), ref(out["a_rec"]), ref(out["a_cyc"])],
+            [rgb(out["x_b"]), ref(out["a_hat"]), tex(out["a_hat"]), rgb(out["b_rec"]), rgb(out["b_cyc"])],
+        ]
+        if "b_hat_j" in out:
+            mask = out["vc_mask"][0].float()[None].expand(3, -1, -1) * 2 - 1
+            rows.append([rgb(batch["a_ref_j"]), rgb(out["b_hat_j"]), rgb(out["b_hat_j_warped"]),
+                         rgb(out["b_hat"]) * (mask > 0) - (mask < 0).float(), mask])
+        return rows
+
+    # --- inference -------------------------------------------------------------------------------
+
+    def inference_stage(self, state: dict, where) -> tuple[GenStage, list[int | None]]:
+        import numpy as np
+
+        from sim2real.errors import UserError
+        from sim2real.texture.neural_texture import NeuralTexture
+
+        gen_state = state["gen"]
+        keys, textures, objects = [], nn.ModuleDict(), []
+        for s in state["scenes"]:
+            keys.append(s["key"])
+            n_obj = None
+            if self.features:
+                tex = gen_state.get(f"textures.{s['key']}.texture")
+                if tex is None:
+                    raise UserError(f"checkpoint {where} has no texture for scene '{s['name']}'")
+                n_obj = int(tex.shape[0])
+                textures[s["key"]] = NeuralTexture(n_obj, np.zeros((n_obj, 2, 3), np.float32), None, self.mc.texture)
+            objects.append(n_obj)
+        return self._stage(keys, textures), objects
+
+    def translate_frames(self, gen: GenStage, batch: Batch) -> torch.Tensor:
+        t = gen.translator
+        x_a = self.x_a(gen, batch, "i")
+        return pad_apply(lambda x: t.dec_b(t.enc_a(x.contiguous(memory_format=self.memory_format))), x_a,
+                         2**self.cfg.generator.downsamplings)
+
