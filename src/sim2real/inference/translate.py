@@ -145,7 +145,7 @@ class FrameSequence:
         self.model = model
         self.info = info
         self.batch = batch
-        self.translator = model.method.sequence(model.gen)
+        self.translator = model.method.sequence(model.gen, info.index, model.device)
 
     @torch.inference_mode()
     def _chunk(self, gbuffers: list[GBuffer]) -> list[np.ndarray]:
@@ -156,9 +156,8 @@ class FrameSequence:
         # by one 8-bit level; with one shape a view's frame never depends on what shares its
         # batch. A time-dependent method sees only the real frames (a repeat would be a new frame).
         pad_to = self.batch if m.method.time_independent else n
-        batch = m.method.inference_batch(gbuffers + [gbuffers[-1]] * (pad_to - n), self.info.index, m.device)
         with precision.autocast(m.device, m.amp):
-            b_hat = self.translator.push(batch)
+            b_hat = self.translator.push(gbuffers + [gbuffers[-1]] * (pad_to - n))
         u8 = ((b_hat.float().clamp(-1.0, 1.0) + 1.0) * 127.5).round().to(torch.uint8)
         u8 = u8[:n].permute(0, 2, 3, 1).cpu().numpy()
         return [np.ascontiguousarray(f) for f in u8]

@@ -70,18 +70,22 @@ def scene_key(name: str, taken: set[str]) -> str:
 
 
 class SequenceTranslator:
-    """Translates the frames of one sequence, in order, chunk after chunk.
+    """Translates the frames of one sequence of one training scene, in order, chunk after chunk.
 
-    ``push(batch)`` takes the next frames' inference batch (:meth:`Method.inference_batch`)
-    and returns their translations (B, 3, H, W) in [-1, 1]. This default is stateless: every
-    frame depends only on its own view, so chunks may have any size. A time-dependent method
-    keeps its state here between calls (the previous output, ...)."""
+    ``push(gbuffers)`` takes the next frames' G-buffers and returns their translations
+    (B, 3, H, W) in [-1, 1]. This default is stateless: every frame depends only on its own view
+    (:meth:`Method.translate_frames` of :meth:`Method.inference_batch`), so chunks may have any
+    size and may repeat frames. A time-dependent method subclasses it and keeps its state here
+    between calls (the previous output and G-buffer, a style drawn for the sequence, ...)."""
 
-    def __init__(self, method: "Method", gen: Stage):
+    def __init__(self, method: "Method", gen: Stage, scene_index: int, device: torch.device):
         self.method = method
         self.gen = gen
+        self.scene_index = scene_index
+        self.device = device
 
-    def push(self, batch: Batch) -> torch.Tensor:
+    def push(self, gbuffers) -> torch.Tensor:
+        batch = self.method.inference_batch(gbuffers, self.scene_index, self.device)
         return self.method.translate_frames(self.gen, batch)
 
 
@@ -191,9 +195,9 @@ class Method(ABC):
         """Domain A -> B for the frames of ``batch`` on their own: (B, 3, H, W) in [-1, 1]. Equals
         the training forward pass's translation of view i for the same input and weights."""
 
-    def sequence(self, gen: Stage) -> SequenceTranslator:
-        """A translator for one sequence (stateless by default)."""
-        return SequenceTranslator(self, gen)
+    def sequence(self, gen: Stage, scene_index: int, device: torch.device) -> SequenceTranslator:
+        """A translator for one sequence of training scene ``scene_index`` (stateless by default)."""
+        return SequenceTranslator(self, gen, scene_index, device)
 
 
 def rgb(x: torch.Tensor) -> torch.Tensor:
