@@ -118,7 +118,7 @@ def test_metric_wiring_on_a_consistent_texture(base, tmp_path, monkeypatch):
     construction: its ORB matches must mostly land on the same 3D points, unlike shuffled frames."""
     from sim2real.inference import translate
 
-    def painted(self, scene_name, gbuffers, batch=8):
+    def painted(gbuffers):
         out = []
         for g in gbuffers:
             p = g.points
@@ -128,7 +128,8 @@ def test_metric_wiring_on_a_consistent_texture(base, tmp_path, monkeypatch):
             out.append((rgb * 255).astype(np.uint8))
         return out
 
-    monkeypatch.setattr(translate.TrainedModel, "translate_gbuffers", painted)
+    monkeypatch.setattr(translate.TrainedModel, "translate_gbuffers", lambda self, name, gbuffers, batch=8: painted(gbuffers))
+    monkeypatch.setattr(translate.FrameSequence, "translate", lambda self, gbuffers: painted(gbuffers))
     monkeypatch.setattr(translate.TrainedModel, "train_size", property(lambda self: (128, 256)))
     s = EvalSettings(views=2, frames=40, seg_iterations=0, orb_max_k=3, orb_features=500, samples=1, anchors=False,
                      trajectory={"flow_budget": None, "max_deg_per_frame": None, "look": "swing"})  # the fast path

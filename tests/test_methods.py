@@ -5,19 +5,16 @@ pass for every method preset."""
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 import torch
 import yaml
-from torch import nn
 
-from sim2real.config import (METHOD_CONFIGS, MethodConfig, TrainConfig, from_dict, load_yaml, preset,
-                             register_method_config, save_yaml, to_dict)
+from sim2real.config import TrainConfig, from_dict, load_yaml, preset, save_yaml, to_dict
 from sim2real.errors import UserError
-from sim2real.methods import METHOD_PRESETS, METHODS, method_config
-from sim2real.methods.base import Method, OptimGroup, Stage
+from sim2real.methods import METHOD_PRESETS, method_config
+from toy_methods import ToyConfig, toy_methods  # noqa: F401  (fixture)
 from train_data import tiny_config
 
 
@@ -60,71 +57,7 @@ def test_format_1_configs_are_migrated():
 # --- a method the project does not know: the trainer and inference must run it unchanged ---------
 
 
-@dataclass
-class ToyConfig(MethodConfig):
-    name = "toy_plugin"
-    gain: float = 2.0
-    """Weight of the toy's only generator term."""
-
-
-class ToyGen(Stage):
-    def __init__(self):
-        super().__init__()
-        self.conv = nn.Conv2d(3, 3, 3, padding=1)
-
-
-class ToyDis(Stage):
-    def __init__(self):
-        super().__init__()
-        self.conv = nn.Conv2d(3, 1, 3, padding=1)
-
-
-class Toy(Method):
-    """b_hat = tanh(conv(a_ref)); L1 to the real crop, LSGAN on a one-layer discriminator."""
-
-    name = "toy_plugin"
-    config_cls = ToyConfig
-    image_keys = ("a_ref_i", "real")
-
-    @property
-    def data(self):
-        return "views"
-
-    def build(self, sources):
-        return ToyGen(), ToyDis()
-
-    def optim_groups(self, gen, dis):
-        return [OptimGroup("g", list(gen.parameters()), 1e-2, "gen"), OptimGroup("d", list(dis.parameters()), 1e-2, "dis")]
-
-    def loss_weights(self, step):
-        return {"fit": self.mc.gain, "d": 1.0}
-
-    def translate(self, gen, batch, step):
-        return {"b_hat": self.translate_frames(gen, batch)}
-
-    def dis_losses(self, dis, batch, out):
-        return {"d": ((dis.conv(out["b_hat"].detach()) ** 2).mean() + ((dis.conv(batch["real"]) - 1) ** 2).mean())}
-
-    def gen_losses(self, dis, batch, out, step):
-        return {"fit": (out["b_hat"] - batch["real"]).abs().mean()}
-
-    def inference_stage(self, state, where):
-        return ToyGen(), [None] * len(state["scenes"])
-
-    def translate_frames(self, gen, batch):
-        return torch.tanh(gen.conv(batch["a_ref_i"]))
-
-
-@pytest.fixture
-def toy_registered():
-    register_method_config(ToyConfig)
-    METHODS[Toy.name] = Toy
-    yield
-    METHODS.pop(Toy.name)
-    METHOD_CONFIGS.pop(ToyConfig.name)
-
-
-def test_a_foreign_method_trains_resumes_and_translates(toy_registered, train_inputs, tmp_path, procedural_caster):
+def test_a_foreign_method_trains_resumes_and_translates(toy_methods, train_inputs, tmp_path, procedural_caster):
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.translate import load_run

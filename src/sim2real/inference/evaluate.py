@@ -21,10 +21,11 @@ Protocol (scaled down by default so that it runs on a CPU; every number is a set
   visible pixels only) and Farnebäck flow of consecutive frames, both also against the ceiling's
   Farnebäck flow; ORB-k accuracy and correct matches per pair for k = 1..``orb_max_k`` with ORB
   settings for the frame size (:func:`~sim2real.metrics.consistency.orb_settings_for`); the
-  revisit protocol (1..T, T..1) for ORB-1/5/10 and OF. The model is time-independent, so the
-  backward half of the extended sequence reuses the forward frames (a method that depends on
-  earlier frames would translate it). Pooled over scenes: ORB sums matches over all pairs, OF
-  averages over all pairs.
+  revisit protocol (1..T, T..1) for ORB-1/5/10 and OF: a time-dependent method translates the
+  backward half T..1 itself, continuing the state it reached at frame T; a time-independent one
+  (``Method.time_independent``) opts into reusing its forward frames, which are the very frames
+  it would translate again. Pooled over scenes: ORB sums matches over all pairs, OF averages
+  over all pairs.
 * **Rows** (:mod:`sim2real.inference.rows`): every metric is computed for the model, the
   **ceiling**, the **floor** (:mod:`sim2real.inference.anchors`) and a_ref on the very same views
   and paths, with the model's position between floor (0) and ceiling (1).
@@ -309,6 +310,9 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
             if row != "a_ref":
                 write_video(frames[row], out / "videos" / (f"{_safe(sc.name)}.mp4" if row == "model"
                                                            else f"{_safe(sc.name)}_{row}.mp4"), fps=traj.fps)
+        if "model_backward" in frames:  # the extended sequence 1..T, T..1 as the method translated it
+            write_video(frames["model"] + frames["model_backward"], out / "videos" / f"{_safe(sc.name)}_revisit.mp4",
+                        fps=traj.fps)
     seconds["consistency"] = time.perf_counter() - t0
     casters.clear()
 
@@ -318,7 +322,8 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     orb = m_row["orb_curve"]
     of_error = m_row["of_error"]
     revisit = {"of_error": m_row["revisit"]["of_error"], "orb": m_row["revisit"]["orb"],
-               "backward_frames": "reused: the model is time-independent"}
+               "backward_frames": "reused: the method is time-independent" if model.time_independent
+               else "translated by the method, continuing its state after frame T"}
     if of_error is None:
         reasons["of_error"] = "no frame pair with visible ground-truth flow (trajectories of 1 frame, or nothing visible)"
     paper_orb = {str(k): orb[str(k)] for k in PAPER_KS}
@@ -442,14 +447,18 @@ def _sequence_metrics(model, scene: str, scene_dir: Path, cameras, caster, ancho
             prev = g
         bar.update(len(chunk))
     bar.close()
-    # The model is time-independent (TrainedModel.time_independent): its revisit half is the
-    # forward frames reversed; a method conditioned on earlier frames would translate it itself.
-    assert model.time_independent
+    backward = None
+    if not model.time_independent:  # the revisit half T..1, continuing the sequence's state
+        backward = []
+        for chunk in chunked(iter_gbuffers(scene_dir, cameras[::-1], s.workers, s.batch, caster=caster), s.batch):
+            backward.extend(seq.translate(chunk))
+        frames["model_backward"] = backward
     rows, ceiling_est = {}, None
     for row in ("ceiling",) + tuple(r for r in rows_shown if r != "ceiling"):
         if row in frames:
             rows[row], est = sequence_row(frames[row], points, masks, flows, valids, ks, s.threshold_mm, orb, ceiling_est,
-                                          revisit=row == "model")  # the anchors reuse their forward pairs
+                                          revisit=row == "model",  # the anchors reuse their forward pairs
+                                          backward=backward if row == "model" else None)
             if row == "ceiling":  # against its own flow the ceiling scores 0 by definition
                 ceiling_est = est
                 r = rows["ceiling"]

@@ -23,16 +23,19 @@ MIN_GAP = 0.05
 
 
 def sequence_row(frames: Sequence[np.ndarray], points, masks, flows, valids, ks, threshold_mm: float, orb,
-                 ceiling_flow_est: Sequence[np.ndarray] | None, revisit: bool = True) -> tuple[dict, list[np.ndarray]]:
+                 ceiling_flow_est: Sequence[np.ndarray] | None, revisit: bool = True,
+                 backward: Sequence[np.ndarray] | None = None) -> tuple[dict, list[np.ndarray]]:
     """Temporal metrics of one video along one path; also returns its Farnebäck flows.
 
     OF error (paper) and EPE against the ground-truth flow; both also against the ceiling
     video's Farnebäck flow (``*_vs_ceiling``: a blurry video whose Farnebäck flow is near zero
-    cannot beat a perfect one there); the ORB-k curve; the revisit protocol. The videos scored
-    here are time-independent, so the revisit's backward half is the forward frames reversed.
-    With ``revisit=False`` the revisit figures are taken from the forward ones, which for such a
-    video compare the very same frame pairs (pair (t, 2T-1-t-k) of the extended sequence shows
-    frames t and t+k): the anchors' rows skip computing them twice.
+    cannot beat a perfect one there); the ORB-k curve; the revisit protocol on the extended
+    sequence ``frames + backward``, where ``backward`` holds the frames of views T..1 as the
+    method translated them after the forward half, continuing its state. A time-independent video
+    may leave ``backward`` out: its backward half is then the forward frames reversed. With
+    ``revisit=False`` (time-independent videos only) the revisit figures are taken from the
+    forward ones, which for such a video compare the very same frame pairs (pair (t, 2T-1-t-k) of
+    the extended sequence shows frames t and t+k): the anchors' rows skip computing them twice.
     """
     from sim2real.metrics.consistency import farneback_flow, flow_errors, orb_curve, revisit_of, revisit_orb
 
@@ -48,8 +51,10 @@ def sequence_row(frames: Sequence[np.ndarray], points, masks, flows, valids, ks,
             per["of_error_vs_ceiling"].append(e)
             per["of_epe_vs_ceiling"].append(epe)
     curve = orb_curve(frames, points, masks, ks=ks, threshold_mm=threshold_mm, n_features=orb)
-    if revisit:
-        ext = list(frames) + list(frames)[::-1]
+    if backward is not None and len(backward) != T:
+        raise ValueError(f"the backward half must have the T = {T} frames of views T..1, got {len(backward)}")
+    if revisit or backward is not None:
+        ext = list(frames) + (list(backward) if backward is not None else list(frames)[::-1])
         rev_of = revisit_of(ext, flows, valids)
         rev_orb = {str(k): revisit_orb(ext, points, masks, k, threshold_mm, orb) for k in PAPER_KS}
     else:
