@@ -15,10 +15,6 @@ import time
 
 from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
 
-REAL_SEED_OFFSET = 1000
-"""Real-domain scenes use seeds S + 1000, ...: never the simulated scenes' seeds."""
-
-
 def register(sub) -> None:
     p = sub.add_parser("demo", help="run the pipeline end to end on procedural data it makes itself")
     p.add_argument("--out", required=True, help="new output directory")
@@ -38,16 +34,20 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def demo_config(preset_name: str | None, cuda: bool, device: str):
+def demo_config(preset_name: str | None, cuda: bool, device: str, method: str = "ours"):
+    """The demo's training configuration of ``method``: the paper preset on a GPU, on a CPU the
+    'small' preset with 16 filters (and, for ``ours``, view consistency from step 300)."""
     from sim2real.config import override, preset
 
     name = preset_name or ("paper" if cuda else "small")
-    cfg = preset(name)
+    cfg = preset(name, method)
     sets = [f"device={device}", "iterations=10000000", "deterministic=false"]
     if name == "small" and preset_name is None:
         # ~0.7 s per iteration on a 2-core CPU (DESIGN.md); switch view consistency on early.
-        sets += ["generator.filters=16", "discriminator.filters=16", "method.vc_start=300",
-                 "checkpoint_every=100", "image_every=100", "log_every=20"]
+        sets += ["generator.filters=16", "discriminator.filters=16", "checkpoint_every=100", "image_every=100",
+                 "log_every=20"]
+        if hasattr(cfg.method, "vc_start"):
+            sets.append("method.vc_start=300")
     elif name == "tiny":
         sets += ["checkpoint_every=5", "image_every=5", "log_every=5"]
     return override(cfg, sets)
@@ -63,8 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
     from sim2real.metrics.realism import fid_weights_status
     from sim2real.render.raycast import RayCaster
-    from sim2real.render.realdomain import make_real_domain
-    from sim2real.scene.procedural import generate_scene
+    from sim2real.data.embedded import make_embedded_data
     from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import make_trajectory
 
@@ -81,11 +80,9 @@ def run(args: argparse.Namespace) -> int:
     out = prepare_output_dir(args.out)
     t0 = time.perf_counter()
 
-    print(f"demo: 1/5 simulated scenes ({args.scenes})", flush=True)
-    sim_dirs = [generate_scene(args.seed + k).save(out / "scenes" / f"sim_{k}") for k in range(args.scenes)]
-    print("demo: 2/5 stand-in real domain", flush=True)
-    real_dirs = [generate_scene(args.seed + REAL_SEED_OFFSET + k).save(out / "scenes" / f"real_{k}") for k in range(2)]
-    make_real_domain(real_dirs, out / "real", images=args.real_images, height=h, width=w, seed=args.seed)
+    steps_said = iter(("1/5", "2/5"))
+    sim_dirs, _ = make_embedded_data(out, args.seed, args.scenes, args.real_images, h, w,
+                                     say=lambda m: print(f"demo: {next(steps_said)} {m}", flush=True))
 
     print(f"demo: 3/5 training for {args.minutes:g} min ({'GPU' if cuda else 'CPU'})", flush=True)
     trainer = Trainer(cfg, scenes=[str(d) for d in sim_dirs], real=str(out / "real" / "images"), out=out / "run")

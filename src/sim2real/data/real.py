@@ -121,16 +121,26 @@ class RealImages:
 
 SEQUENCES = "sequences"
 """Sub-folder of a real folder that holds sequences: ``REAL/sequences/NAME/images/*.png|jpg``,
-consecutive frames in file-name order (the stand-in real domain writes this layout)."""
+consecutive frames in file-name order (the stand-in real domain writes this layout). When the
+real folder given is an ``images`` folder (``REAL/images``, as the stand-in's single frames), its
+sibling ``REAL/sequences`` is used."""
+
+
+def sequences_root(folder: str | os.PathLike) -> Path:
+    """Where the sequences of real folder ``folder`` are (see :data:`SEQUENCES`)."""
+    folder = Path(folder)
+    if not (folder / SEQUENCES).is_dir() and folder.name == "images" and (folder.parent / SEQUENCES).is_dir():
+        return folder.parent / SEQUENCES
+    return folder / SEQUENCES
 
 
 class RealSequences:
-    """Consecutive real frames for the video methods: every ``REAL/sequences/*/images`` folder with
-    at least ``length`` frames is a sequence (docs/formats.md)."""
+    """Consecutive real frames for the video methods: every ``sequences/*/images`` folder (see
+    :func:`sequences_root`) with at least ``length`` frames is a sequence (docs/formats.md)."""
 
     def __init__(self, folder: str | os.PathLike, length: int = 3):
         self.folder = Path(folder)
-        root = self.folder / SEQUENCES
+        root = sequences_root(self.folder)
         self.sequences = []
         if root.is_dir():
             for d in sorted(p for p in root.iterdir() if (p / "images").is_dir()):

@@ -1,0 +1,277 @@
+"""``sim2real benchmark``: the paper's Table 1 in one command.
+
+Every method (a preset of :data:`sim2real.methods.METHOD_PRESETS`) is trained on the same data
+with the same seed for the same budget (wall-clock minutes or iterations; both are recorded),
+translates the same test trajectories, and is scored by the one evaluator
+(:func:`sim2real.inference.evaluate.evaluate`: FID/KID with weights, else the named proxy; Dice;
+OF error; ORB-1/5/10; the revisit protocol). The ceiling and the floor are scored once, with the
+first method, on the very same views and paths: every method's temporal figures stand beside them.
+
+Layout of ``OUT``::
+
+    benchmark.json            the settings (a resume must match them)
+    data/                     the embedded scenes and stand-in real domain (without data flags)
+    trajectories/             the generated test paths, one per evaluated scene
+    runs/METHOD/              training runs; done.json once the budget is spent
+    translations/METHOD/      frames, video.mp4 and ground truth of the first test path
+    evaluations/METHOD/       metrics.json, report.html
+    videos/METHOD.mp4         one video per method
+    table.md, table.json      Table 1 (comparison/table.py)
+    report.html               bar charts and the side-by-side views (comparison/figures.py)
+
+A killed benchmark continues with ``--resume``: finished trainings, translations and evaluations
+are kept (their marker files say so), an interrupted training resumes from its checkpoint with
+what is left of its budget, and unfinished outputs are redone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sim2real.errors import UserError
+from sim2real.fileio import atomic_write_json
+
+FORMAT = "sim2real-benchmark/1"
+
+
+@dataclass
+class BenchmarkSettings:
+    """What ``sim2real benchmark`` compares, and how long each method trains."""
+
+    methods: list[str]
+    minutes: float | None = None
+    """Wall-clock training budget per method (exclusive with ``iterations``)."""
+    iterations: int | None = None
+    """Iteration budget per method."""
+    preset: str | None = None
+    """Size preset; None: paper on a GPU, the demo's lighter 'small' (16 filters) on a CPU."""
+    seed: int = 0
+    device: str = "auto"
+    scenes: int = 2
+    """Embedded simulated scenes (without --scenes)."""
+    real_images: int = 200
+    sequences: int = 4
+    """Stand-in real sequences (for the video methods) without --real."""
+    sequence_frames: int = 30
+    frames: int = 100
+    eval_views: int = 32
+    seg_iterations: int = 600
+    trajectory: dict = field(default_factory=dict)
+    """Motion budget of the generated test paths (make_trajectory keywords)."""
+
+
+def _say(msg: str) -> None:
+    print(f"benchmark: {msg}", file=sys.stderr, flush=True)
+
+
+def method_config(s: BenchmarkSettings, method: str, cuda: bool):
+    """The training configuration of ``method`` in this benchmark (the demo's, with the budget)."""
+    from sim2real.cli.demo import demo_config
+    from sim2real.config import override
+
+    cfg = demo_config(s.preset, cuda, s.device, method)
+    sets = [f"seed={s.seed}"]
+    if s.iterations is not None:
+        sets.append(f"iterations={s.iterations}")
+        sets.append(f"checkpoint_every={min(cfg.checkpoint_every, s.iterations)}")
+    return override(cfg, sets)
+
+
+def _uses_sequences(cfg) -> bool:
+    from sim2real.methods import get_method
+
+    return get_method(cfg).data == "triplets"
+
+
+def check(s: BenchmarkSettings, out: Path, scenes, real, trajectories, resume: bool, fid_weights) -> dict:
+    """Every input checked before anything is written or trained; returns the method configs."""
+    import torch
+
+    from sim2real.config import validate
+    from sim2real.engine.trainer import resolve_device
+    from sim2real.inference.evaluate import EvalSettings, check_settings
+    from sim2real.methods import METHOD_PRESETS
+    from sim2real.metrics.realism import fid_weights_status
+
+    if not s.methods:
+        raise UserError("no methods to compare (--methods NAME...)")
+    unknown = [m for m in s.methods if m not in METHOD_PRESETS]
+    if unknown:
+        raise UserError(f"unknown method '{unknown[0]}' (choose from {', '.join(METHOD_PRESETS)})")
+    if len(set(s.methods)) != len(s.methods):
+        raise UserError("a method is named twice in --methods")
+    if (s.minutes is None) == (s.iterations is None):
+        raise UserError("give one budget: --minutes-per-method M or --iterations N")
+    if (scenes is None) != (real is None):
+        raise UserError("give --scenes and --real together, or neither (the embedded data)")
+    if trajectories is not None and scenes is None:
+        raise UserError("--trajectory needs --scenes (one trajectory per scene)")
+    if trajectories is not None and len(trajectories) != len(scenes):
+        raise UserError(f"give one trajectory per scene: {len(scenes)} scenes, {len(trajectories)} trajectories")
+    resolve_device(s.device)
+    cuda = s.device == "cuda" or (s.device == "auto" and torch.cuda.is_available())
+    configs = {m: method_config(s, m, cuda) for m in s.methods}
+    for cfg in configs.values():
+        validate(cfg)
+    check_settings(EvalSettings(views=s.eval_views, frames=s.frames, seg_iterations=s.seg_iterations, seed=s.seed))
+    fid_weights_status(fid_weights)
+    video = [m for m, cfg in configs.items() if _uses_sequences(cfg)]
+    if real is not None:
+        from sim2real.data.real import RealImages, RealSequences
+
+        RealImages(real)
+        if video:
+            try:
+                RealSequences(real)
+            except UserError as e:
+                raise UserError(f"{', '.join(video)} train on consecutive real frames: {e}") from None
+        for d in scenes:
+            if not (Path(d) / "scene.json").is_file():
+                raise UserError(f"{d} is not a scene folder (no scene.json)")
+    elif video and s.sequences < 1:
+        raise UserError(f"{', '.join(video)} train on consecutive real frames: give --real-sequences >= 1")
+    if resume:
+        manifest = out / "benchmark.json"
+        if not manifest.is_file():
+            raise UserError(f"nothing to resume: {manifest} does not exist")
+        saved = json.loads(manifest.read_text())
+        if saved.get("settings") != _settings_json(s, scenes, real, trajectories):
+            raise UserError(f"--resume: the flags differ from the benchmark's own ({manifest}); give the same flags")
+    else:
+        from sim2real.fileio import prepare_output_dir
+
+        prepare_output_dir(out)
+    return configs
+
+
+def _settings_json(s: BenchmarkSettings, scenes, real, trajectories) -> dict:
+    res = lambda p: str(Path(p).resolve())  # noqa: E731
+    return {**dataclasses.asdict(s), "scenes": None if scenes is None else [res(d) for d in scenes],
+            "real": None if real is None else res(real),
+            "trajectories": None if trajectories is None else [res(t) for t in trajectories]}
+
+
+def _fresh(path: Path) -> Path:
+    """An output folder of a step that did not finish: removed, to be redone."""
+    if path.exists():
+        shutil.rmtree(path)
+    return path
+
+
+def _data(s: BenchmarkSettings, out: Path, configs: dict, scenes, real) -> tuple[list[Path], Path]:
+    from sim2real.data.embedded import make_embedded_data
+
+    if scenes is not None:
+        return [Path(d) for d in scenes], Path(real)
+    data = out / "data"
+    done = data / "done.json"
+    video = any(_uses_sequences(c) for c in configs.values())
+    cfg = next(iter(configs.values()))
+    if not done.is_file():
+        _fresh(data)
+        sim, _ = make_embedded_data(data, s.seed, s.scenes, s.real_images, cfg.data.height, cfg.data.width,
+                                    sequences=s.sequences if video else 0, sequence_frames=s.sequence_frames, say=_say)
+        atomic_write_json(done, {"scenes": [str(d) for d in sim]})
+    sim = [Path(d) for d in json.loads(done.read_text())["scenes"]]
+    return sim, data / "real"
+
+
+def _train(name: str, cfg, s: BenchmarkSettings, scenes: list[Path], real: Path, out: Path) -> dict:
+    """Train one method for its budget (resuming an interrupted run); returns its done record."""
+    from sim2real.engine.trainer import Trainer
+    from sim2real.fileio import atomic_write_json as write
+
+    run = out / "runs" / name
+    done, progress = run / "done.json", run / "progress.json"
+    if done.is_file():
+        return json.loads(done.read_text())
+    last = run / "checkpoints" / "last.pt"
+    spent = json.loads(progress.read_text())["seconds"] if progress.is_file() and last.is_file() else 0.0
+    if not last.is_file():
+        _fresh(run)
+    # the real folder's images: a stand-in root trains on its images/ (its labels are not photographs)
+    real_images = real / "images" if (real / "images").is_dir() else real
+    trainer = Trainer(cfg, [str(d) for d in scenes], str(real_images), run, resume=last if last.is_file() else None,
+                      progress=True)
+    t0 = time.perf_counter()
+
+    def record(step, values):
+        if (step + 1) % 25 == 0:
+            write(progress, {"seconds": spent + time.perf_counter() - t0, "step": step + 1})
+
+    trainer.hooks.append(record)
+    try:
+        left = None if s.minutes is None else max(1.0, 60.0 * s.minutes - spent)
+        trainer.train(time_limit_s=left)
+    finally:
+        trainer.close()
+    if trainer.stopped_by:
+        raise UserError(f"training of {name} was stopped; continue with --resume")
+    rec = {"method": name, "iterations": trainer.step, "seconds": round(spent + time.perf_counter() - t0, 1),
+           "budget": {"minutes": s.minutes} if s.minutes is not None else {"iterations": s.iterations}}
+    write(done, rec)
+    return rec
+
+
+def run_benchmark(out, s: BenchmarkSettings, scenes=None, real=None, trajectories=None, resume: bool = False,
+                  fid_weights=None) -> dict:
+    """Train, translate, evaluate every method and write the table and the report (module docstring)."""
+    from sim2real.comparison.figures import side_by_side, write_report
+    from sim2real.comparison.table import build_table, write_table
+    from sim2real.inference.evaluate import EvalSettings, evaluate
+    from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
+    from sim2real.render.raycast import RayCaster
+    from sim2real.scene.scene import Scene
+    from sim2real.scene.trajectory import make_trajectory
+
+    out = Path(out)
+    configs = check(s, out, scenes, real, trajectories, resume, fid_weights)
+    atomic_write_json(out / "benchmark.json", {"format": FORMAT, "settings": _settings_json(s, scenes, real, trajectories)})
+    sim, real_dir = _data(s, out, configs, scenes, real)
+    cfg0 = next(iter(configs.values()))
+    if trajectories is None:
+        trajectories = []
+        for k, d in enumerate(sim[:1] if scenes is None else sim):
+            path = out / "trajectories" / f"scene_{k}.txt"
+            if not path.is_file():
+                _say(f"test trajectory of {Scene.load(d).name}")
+                make_trajectory(RayCaster(Scene.load(d)), s.frames, cfg0.data.height, cfg0.data.width,
+                                cfg0.data.fov_x_deg, seed=s.seed + k, **s.trajectory).save(path)
+            trajectories.append(path)
+    eval_scenes = sim[: len(trajectories)]
+    trained, metrics = {}, {}
+    for name, cfg in configs.items():
+        _say(f"{name}: training ({'%g min' % s.minutes if s.minutes is not None else '%d iterations' % s.iterations})")
+        trained[name] = _train(name, cfg, s, sim, real_dir, out)
+    for k, name in enumerate(configs):
+        tdir = out / "translations" / name
+        if not (tdir / "translate.json").is_file():
+            _say(f"{name}: translating the test trajectory")
+            model = load_run(out / "runs" / name, device=s.device)
+            translate_sequence(model, trajectory_source(model, eval_scenes[0], trajectories[0]), _fresh(tdir))
+            video = out / "videos" / f"{name}.mp4"
+            video.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(tdir / "video.mp4", video.with_suffix(".mp4.tmp"))
+            video.with_suffix(".mp4.tmp").replace(video)
+        edir = out / "evaluations" / name
+        if not (edir / "metrics.json").is_file():
+            _say(f"{name}: evaluation" + (" (with the ceiling and the floor)" if k == 0 else ""))
+            settings = EvalSettings(views=s.eval_views, frames=s.frames, seg_iterations=s.seg_iterations, seed=s.seed,
+                                    anchors=k == 0, trajectory=s.trajectory or None)
+            evaluate(out / "runs" / name, [str(d) for d in eval_scenes], real_dir, _fresh(edir),
+                     trajectories=[str(t) for t in trajectories], settings=settings, fid_weights=fid_weights,
+                     device=s.device, progress=True)
+        metrics[name] = json.loads((edir / "metrics.json").read_text())
+    table = build_table(metrics, trained, configs)
+    write_table(table, out)
+    _say("the side-by-side figure")
+    figure = side_by_side(out, configs, eval_scenes[0], trajectories[0], real_dir, s)
+    write_report(table, out, figure)
+    _say(f"written: {out / 'table.md'}, {out / 'report.html'}")
+    return table
