@@ -302,7 +302,9 @@ class SsimMunit(Method):
         B, dev = x_a.shape[0], x_a.device
 
         def normal(*shape):
-            return torch.randn(shape, generator=generator).to(dev) if generator is not None else torch.randn(shape, device=dev)
+            if generator is None:
+                return torch.randn(shape, device=dev)
+            return torch.randn(shape, generator=generator).to(dev)
 
         noise = normal(*x_a.shape) if self.mc.noise_std > 0 else None
         views = [("random_style", self._a_to_b(gen, x_a, normal(B, self.mc.style_dim), noise))]
