@@ -111,6 +111,12 @@ def test_inference_equals_the_training_forward_pass(name, train_inputs, tmp_path
     cams = sample_poses(procedural_caster, 2, 64, 128, 75.0, seed=9)
     gbuffers = [procedural_caster.render(c) for c in cams]
     batch = {**view_tensors(gbuffers, "i"), "real": torch.zeros(2, 3, 64, 128), "scene": [0, 0]}
+    # A stochastic method's random draws (styles, noise) travel in its inference batch: the
+    # training pass takes the draws that inference makes for each view (as the first frame of a
+    # sequence, as translate_gbuffers translates unrelated views of a time-dependent method).
+    parts = [trainer.method.inference_batch([g], 0, torch.device("cpu")) for g in gbuffers]
+    batch.update({k: torch.cat([p[k] for p in parts]) for k in parts[0]
+                  if torch.is_tensor(parts[0][k]) and k not in batch})
     with torch.no_grad():
         b_hat = trainer.method.translate(trainer.gen, batch, 0)["b_hat"]
     want = ((b_hat.clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()

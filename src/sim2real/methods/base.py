@@ -18,7 +18,9 @@ without knowing which it is. A method
 * restores its generator stage from a checkpoint for inference and translates sequences
   (:meth:`Method.inference_stage`, :meth:`Method.sequence`): the default translates each frame
   on its own, batched; a method whose output depends on earlier frames returns a stateful
-  :class:`SequenceTranslator` and sets :attr:`Method.time_independent` to False.
+  :class:`SequenceTranslator` and sets :attr:`Method.time_independent` to False;
+* says which translations a realism evaluation scores (:meth:`Method.translate_views`: one by
+  default, one per kind of style for a method with styles).
 """
 
 from __future__ import annotations
@@ -194,6 +196,16 @@ class Method(ABC):
     def translate_frames(self, gen: Stage, batch: Batch) -> torch.Tensor:
         """Domain A -> B for the frames of ``batch`` on their own: (B, 3, H, W) in [-1, 1]. Equals
         the training forward pass's translation of view i for the same input and weights."""
+
+    def translate_views(self, gen: Stage, batch: Batch, real: torch.Tensor | None = None,
+                        generator: torch.Generator | None = None) -> list[tuple[str, torch.Tensor]]:
+        """The translations of the views of ``batch`` that a realism evaluation scores, each
+        (name, (B, 3, H, W) in [-1, 1]); names are suffixes of the result keys. ``real``: real
+        images (B or 1, 3, h, w) in [-1, 1] that a method may take a style from; ``generator``:
+        a CPU generator for any random draw (None: the global RNG). Default: one unnamed
+        translation, :meth:`translate_frames`. A method with styles returns one per kind of style
+        (ssim_munit: 'random_style' and, given ``real``, 'real_style')."""
+        return [("", self.translate_frames(gen, batch))]
 
     def sequence(self, gen: Stage, scene_index: int, device: torch.device) -> SequenceTranslator:
         """A translator for one sequence of training scene ``scene_index`` (stateless by default)."""
