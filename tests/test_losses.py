@@ -81,6 +81,16 @@ def test_ms_ssim_gradient_is_finite():
     assert torch.isfinite(x.grad).all() and x.grad.abs().sum() > 0
 
 
+def test_ms_ssim_is_computed_in_fp32_under_autocast():
+    torch.manual_seed(0)
+    x = torch.rand(1, 3, 64, 128) * 2 - 1
+    y = (x + 0.3 * torch.randn_like(x)).clamp(-1, 1)
+    want = ms_ssim_loss(x, y, win=3).item()
+    with torch.autocast("cpu", dtype=torch.bfloat16):  # the CUDA path's autocast, on the CPU
+        got = ms_ssim_loss(x, y, win=3)
+    assert got.dtype == torch.float32 and got.item() == pytest.approx(want, abs=1e-6)
+
+
 def test_ms_ssim_size_limit_error_names_the_fields():
     with pytest.raises(ValueError, match=r"loss\.ssim_win=11.*160 px.*64x128.*data\.height.*largest allowed here: 3"):
         ms_ssim_loss(torch.zeros(1, 3, 64, 128), torch.zeros(1, 3, 64, 128), win=11)

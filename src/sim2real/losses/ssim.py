@@ -54,5 +54,8 @@ def ms_ssim_loss(x: torch.Tensor, y: torch.Tensor, win: int = 11, scales: int = 
     check_ssim_size(x.shape[-2], x.shape[-1], win)
     w = MS_SSIM_WEIGHTS[:scales]
     weights = [v / sum(w) for v in w]
-    gx, gy = grey(x).float(), grey(y).float()  # fp32 even under autocast: products of small values
-    return 1 - ms_ssim(gx, gy, data_range=1.0, size_average=True, win_size=win, weights=weights)
+    gx, gy = grey(x).float(), grey(y).float()
+    # fp32 even under autocast: the Gaussian filtering is a conv2d, which autocast would run in
+    # bf16, and sigma^2 = E[x^2] - E[x]^2 cancels catastrophically there (test_losses.py)
+    with torch.autocast(gx.device.type, enabled=False):
+        return 1 - ms_ssim(gx, gy, data_range=1.0, size_average=True, win_size=win, weights=weights)
