@@ -13,9 +13,9 @@ import yaml
 
 from sim2real.config import TrainConfig, from_dict, load_yaml, preset, save_yaml, to_dict
 from sim2real.errors import UserError
-from sim2real.methods import METHOD_PRESETS, method_config
+from sim2real.methods import METHOD_PRESETS, get_method, method_config
 from toy_methods import ToyConfig, toy_methods  # noqa: F401  (fixture)
-from train_data import tiny_config
+from train_data import real_sequences_dir, tiny_config
 
 
 @pytest.mark.parametrize("name", sorted(METHOD_PRESETS))
@@ -105,6 +105,9 @@ def test_inference_equals_the_training_forward_pass(name, train_inputs, tmp_path
 
     scenes, real = train_inputs
     cfg = tiny_config(name, iterations=2, checkpoint_every=2, image_every=100)
+    video = get_method(cfg).data == "triplets"
+    if video:  # the video methods train on real sequences
+        real = real_sequences_dir(tmp_path)
     trainer = Trainer(cfg, [scenes], real, tmp_path / "run", progress=False)
     trainer.train()  # two real steps, so that the textures and networks are no longer at their init
     trainer.close()
@@ -117,6 +120,9 @@ def test_inference_equals_the_training_forward_pass(name, train_inputs, tmp_path
     parts = [trainer.method.inference_batch([g], 0, torch.device("cpu")) for g in gbuffers]
     batch.update({k: torch.cat([p[k] for p in parts]) for k in parts[0]
                   if torch.is_tensor(parts[0][k]) and k not in batch})
+    if video:  # a triplet: b_hat is frame 0's translation (frames 1, 2 are other views)
+        batch = {**view_tensors(gbuffers, "0"), **view_tensors(gbuffers[::-1], "1"), **view_tensors(gbuffers[::-1], "2"),
+                 **{f"real_{t}": torch.zeros(2, 3, 64, 128) for t in range(3)}, "scene": [0, 0]}
     with torch.no_grad():
         b_hat = trainer.method.translate(trainer.gen, batch, 0)["b_hat"]
     want = ((b_hat.clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()

@@ -63,3 +63,20 @@ def views_dir(base: Path, scene_path: Path, n: int = 4, height: int = 64, width:
         caster.render(cam).save(path / f"view_{k:05d}.npz")
     write_views_manifest(path, scene.name, scene_path, n)
     return path
+
+
+def real_sequences_dir(base: Path, frames: int = 4, name: str = "real_seq") -> Path:
+    """A real folder for the video methods: one sequence ``sequences/000/images`` of ``frames``
+    smooth colour frames (96 x 192) whose pattern shifts a little from frame to frame."""
+    from PIL import Image
+
+    path = Path(base) / name
+    images = path / "sequences" / "000" / "images"
+    if images.is_dir():
+        return path
+    images.mkdir(parents=True)
+    yy, xx = np.mgrid[0:96, 0:192] / 192
+    for k in range(frames):
+        rgb = np.stack([0.5 + 0.4 * np.sin((3 + c) * (xx + c * yy + 0.02 * k) * np.pi) for c in range(3)], -1)
+        Image.fromarray((rgb * 255).astype(np.uint8)).save(images / f"{k:04d}.png")
+    return path

@@ -9,6 +9,8 @@ preset             method      what it is
 ``ours_l1_vc``     ours        L1 instead of the angle in L_vc (paper Fig. 7)
 ``ours_no_tex_vc`` ours        no texture (domain A = a_ref, 3 channels), lambda_vc = 0
 ``ssim_munit``     ssim_munit  Pfeiffer et al. 2019: MUNIT with styles and input noise + MS-SSIM
+``recycle``        recycle     ReCycle-GAN (Bansal et al. 2018) with the non-temporal cycles
+``ssim_recycle``   recycle     recycle + the MS-SSIM losses (5 / 3 on grey a_ref <-> b)
 =================  ==========  ==============================================================
 """
 
@@ -18,9 +20,10 @@ from sim2real.config import METHOD_CONFIGS, MethodConfig, TrainConfig, override
 from sim2real.errors import UserError
 from sim2real.methods.base import Method
 from sim2real.methods.ours import Ours
+from sim2real.methods.recycle import Recycle
 from sim2real.methods.ssim_munit import SsimMunit
 
-METHODS: dict[str, type[Method]] = {m.name: m for m in (Ours, SsimMunit)}
+METHODS: dict[str, type[Method]] = {m.name: m for m in (Ours, SsimMunit, Recycle)}
 """Registered methods by name."""
 
 METHOD_PRESETS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -29,6 +32,8 @@ METHOD_PRESETS: dict[str, tuple[str, tuple[str, ...]]] = {
     "ours_l1_vc": ("ours", ("vc_kind=l1",)),
     "ours_no_tex_vc": ("ours", ("texture.features=0", "vc=0")),
     "ssim_munit": ("ssim_munit", ()),
+    "recycle": ("recycle", ()),
+    "ssim_recycle": ("recycle", ("ssim=true",)),
 }
 """Named presets: (method, assignments to its config section)."""
 
