@@ -164,19 +164,24 @@ def test_a_foreign_method_trains_resumes_and_translates(toy_registered, train_in
 
 
 @pytest.mark.parametrize("name", sorted(METHOD_PRESETS))
-def test_inference_equals_the_training_forward_pass(name, train_inputs, tmp_path, procedural_caster):
+def test_inference_equals_the_training_forward_pass(name, request, tmp_path, procedural_caster):
     from sim2real.data.tensors import view_tensors
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.translate import load_run
+    from sim2real.methods import get_method
     from sim2real.scene.trajectory import sample_poses
 
-    scenes, real = train_inputs
     cfg = tiny_config(name, iterations=2, checkpoint_every=2, image_every=100)
+    # video methods train on real sequences
+    video = get_method(cfg).data == "triplets"
+    scenes, real = request.getfixturevalue("video_train_inputs" if video else "train_inputs")
     trainer = Trainer(cfg, [scenes], real, tmp_path / "run", progress=False)
     trainer.train()  # two real steps, so that the textures and networks are no longer at their init
     trainer.close()
     cams = sample_poses(procedural_caster, 2, 64, 128, 75.0, seed=9)
     gbuffers = [procedural_caster.render(c) for c in cams]
+    # single frames; translate_gbuffers translates each view as a sequence start, so a
+    # time-dependent method's training forward pass gets no previous frame here either
     batch = {**view_tensors(gbuffers, "i"), "real": torch.zeros(2, 3, 64, 128), "scene": [0, 0]}
     with torch.no_grad():
         b_hat = trainer.method.translate(trainer.gen, batch, 0)["b_hat"]

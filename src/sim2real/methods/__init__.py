@@ -8,6 +8,7 @@ preset             method      what it is
 ``ours_no_vc``     ours        lambda_vc = 0
 ``ours_l1_vc``     ours        L1 instead of the angle in L_vc (paper Fig. 7)
 ``ours_no_tex_vc`` ours        no texture (domain A = a_ref, 3 channels), lambda_vc = 0
+``of_unit``        of_unit     E_A fed (w(b_prev), a_ref), b_prev its own output; L1 vc, 50
 =================  ==========  ==============================================================
 """
 
@@ -16,9 +17,10 @@ from __future__ import annotations
 from sim2real.config import METHOD_CONFIGS, MethodConfig, TrainConfig, override
 from sim2real.errors import UserError
 from sim2real.methods.base import Method
+from sim2real.methods.of_unit import OfUnit
 from sim2real.methods.ours import Ours
 
-METHODS: dict[str, type[Method]] = {m.name: m for m in (Ours,)}
+METHODS: dict[str, type[Method]] = {m.name: m for m in (Ours, OfUnit)}
 """Registered methods by name."""
 
 METHOD_PRESETS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -26,6 +28,7 @@ METHOD_PRESETS: dict[str, tuple[str, tuple[str, ...]]] = {
     "ours_no_vc": ("ours", ("vc=0",)),
     "ours_l1_vc": ("ours", ("vc_kind=l1",)),
     "ours_no_tex_vc": ("ours", ("texture.features=0", "vc=0")),
+    "of_unit": ("of_unit", ()),
 }
 """Named presets: (method, assignments to its config section)."""
 
