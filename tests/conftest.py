@@ -44,6 +44,15 @@ def train_inputs(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def video_train_inputs(tmp_path_factory):
+    """(scene folder, real folder with one 6-frame sequence) for the video methods (triplets)."""
+    from train_data import real_video_dir, scene_dir
+
+    base = tmp_path_factory.getbasetemp()
+    return scene_dir(base, 11), real_video_dir(base)
+
+
+@pytest.fixture(scope="module")
 def one_torch_thread():
     """torch on one thread for a module: 2 OpenMP threads on 2 shared, busy cores spin against
     each other (10x slower on the dev machine)."""

@@ -15,7 +15,7 @@ from sim2real.config import TrainConfig, from_dict, load_yaml, preset, save_yaml
 from sim2real.errors import UserError
 from sim2real.methods import METHOD_PRESETS, get_method, method_config
 from toy_methods import ToyConfig, toy_methods  # noqa: F401  (fixture)
-from train_data import real_sequences_dir, tiny_config
+from train_data import tiny_config
 
 
 @pytest.mark.parametrize("name", sorted(METHOD_PRESETS))
@@ -97,22 +97,23 @@ def test_a_foreign_method_trains_resumes_and_translates(toy_methods, train_input
 
 
 @pytest.mark.parametrize("name", sorted(METHOD_PRESETS))
-def test_inference_equals_the_training_forward_pass(name, train_inputs, tmp_path, procedural_caster):
+def test_inference_equals_the_training_forward_pass(name, request, tmp_path, procedural_caster):
     from sim2real.data.tensors import view_tensors
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.translate import load_run
     from sim2real.scene.trajectory import sample_poses
 
-    scenes, real = train_inputs
     cfg = tiny_config(name, iterations=2, checkpoint_every=2, image_every=100)
+    # video methods train on real sequences
     video = get_method(cfg).data == "triplets"
-    if video:  # the video methods train on real sequences
-        real = real_sequences_dir(tmp_path)
+    scenes, real = request.getfixturevalue("video_train_inputs" if video else "train_inputs")
     trainer = Trainer(cfg, [scenes], real, tmp_path / "run", progress=False)
     trainer.train()  # two real steps, so that the textures and networks are no longer at their init
     trainer.close()
     cams = sample_poses(procedural_caster, 2, 64, 128, 75.0, seed=9)
     gbuffers = [procedural_caster.render(c) for c in cams]
+    # single frames; translate_gbuffers translates each view as a sequence start, so a
+    # time-dependent method's training forward pass gets no previous frame here either
     batch = {**view_tensors(gbuffers, "i"), "real": torch.zeros(2, 3, 64, 128), "scene": [0, 0]}
     # A stochastic method's random draws (styles, noise) travel in its inference batch: the
     # training pass takes the draws that inference makes for each view (as the first frame of a
@@ -120,7 +121,9 @@ def test_inference_equals_the_training_forward_pass(name, train_inputs, tmp_path
     parts = [trainer.method.inference_batch([g], 0, torch.device("cpu")) for g in gbuffers]
     batch.update({k: torch.cat([p[k] for p in parts]) for k in parts[0]
                   if torch.is_tensor(parts[0][k]) and k not in batch})
-    if video:  # a triplet: b_hat is frame 0's translation (frames 1, 2 are other views)
+    if video and trainer.method.time_independent:
+        # ReCycle trains on triplets only: b_hat is frame 0's translation (frames 1, 2 are other
+        # views). A time-dependent method (OF-UNIT) takes single frames with no previous frame.
         batch = {**view_tensors(gbuffers, "0"), **view_tensors(gbuffers[::-1], "1"), **view_tensors(gbuffers[::-1], "2"),
                  **{f"real_{t}": torch.zeros(2, 3, 64, 128) for t in range(3)}, "scene": [0, 0]}
     with torch.no_grad():

@@ -11,7 +11,7 @@ from torch import nn
 from sim2real.config import validate
 from sim2real.errors import UserError
 from sim2real.methods import get_method
-from train_data import real_sequences_dir, tiny_config
+from train_data import real_video_dir, tiny_config
 
 
 @pytest.fixture(autouse=True)
@@ -173,7 +173,7 @@ def test_trains_resumes_and_translates_a_sequence(name, train_inputs, tmp_path, 
     from sim2real.scene.trajectory import linear_path
 
     scenes, _ = train_inputs
-    real = real_sequences_dir(tmp_path)
+    real = real_video_dir(tmp_path)
     cfg = tiny_config(name, iterations=2, checkpoint_every=2, image_every=1)
     run = tmp_path / "run"
     trainer = Trainer(cfg, [scenes], real, run, progress=False)

@@ -39,6 +39,23 @@ def real_dir(base: Path, n: int = 4, name: str = "real", modes=("RGB",)) -> Path
     return path
 
 
+def real_video_dir(base: Path, frames: int = 6, name: str = "real_video") -> Path:
+    """A real folder whose only images are one sequence (``sequences/000/images``) of ``frames``
+    consecutive frames of a slowly moving smooth pattern (the video methods need sequences)."""
+    from PIL import Image
+
+    path = Path(base) / name
+    seq = path / "sequences" / "000" / "images"
+    if seq.is_dir():
+        return path
+    seq.mkdir(parents=True)
+    yy, xx = np.mgrid[0:96, 0:192] / 192.0
+    for k in range(frames):
+        rgb = np.stack([0.5 + 0.4 * np.sin((3 + c) * (xx + 0.02 * k + c * yy) * np.pi) for c in range(3)], -1)
+        Image.fromarray((rgb * 255).astype(np.uint8)).save(seq / f"{k:04d}.png")
+    return path
+
+
 def tiny_config(method: str = "ours", **changes):
     """The tiny preset of ``method`` with ``section.field=value`` changes (as ``--method`` and
     ``--set`` would apply them)."""
@@ -63,17 +80,6 @@ def views_dir(base: Path, scene_path: Path, n: int = 4, height: int = 64, width:
         caster.render(cam).save(path / f"view_{k:05d}.npz")
     write_views_manifest(path, scene.name, scene_path, n)
     return path
-
-
-def real_sequences_dir(base: Path, frames: int = 4, name: str = "real_seq") -> Path:
-    """A real folder for the video methods: one sequence ``sequences/000/images`` of ``frames``
-    smooth colour frames (96 x 192) whose pattern shifts a little from frame to frame."""
-    from PIL import Image
-
-    path = Path(base) / name
-    images = path / "sequences" / "000" / "images"
-    if images.is_dir():
-        return path
     images.mkdir(parents=True)
     yy, xx = np.mgrid[0:96, 0:192] / 192
     for k in range(frames):

@@ -11,6 +11,7 @@ preset             method      what it is
 ``ssim_munit``     ssim_munit  Pfeiffer et al. 2019: MUNIT with styles and input noise + MS-SSIM
 ``recycle``        recycle     ReCycle-GAN (Bansal et al. 2018) with the non-temporal cycles
 ``ssim_recycle``   recycle     recycle + the MS-SSIM losses (5 / 3 on grey a_ref <-> b)
+``of_unit``        of_unit     E_A fed (w(b_prev), a_ref), b_prev its own output; L1 vc, 50
 =================  ==========  ==============================================================
 """
 
@@ -19,11 +20,12 @@ from __future__ import annotations
 from sim2real.config import METHOD_CONFIGS, MethodConfig, TrainConfig, override
 from sim2real.errors import UserError
 from sim2real.methods.base import Method
+from sim2real.methods.of_unit import OfUnit
 from sim2real.methods.ours import Ours
 from sim2real.methods.recycle import Recycle
 from sim2real.methods.ssim_munit import SsimMunit
 
-METHODS: dict[str, type[Method]] = {m.name: m for m in (Ours, SsimMunit, Recycle)}
+METHODS: dict[str, type[Method]] = {m.name: m for m in (Ours, SsimMunit, Recycle, OfUnit)}
 """Registered methods by name."""
 
 METHOD_PRESETS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -34,6 +36,7 @@ METHOD_PRESETS: dict[str, tuple[str, tuple[str, ...]]] = {
     "ssim_munit": ("ssim_munit", ()),
     "recycle": ("recycle", ()),
     "ssim_recycle": ("recycle", ("ssim=true",)),
+    "of_unit": ("of_unit", ()),
 }
 """Named presets: (method, assignments to its config section)."""
 
