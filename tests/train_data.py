@@ -80,9 +80,3 @@ def views_dir(base: Path, scene_path: Path, n: int = 4, height: int = 64, width:
         caster.render(cam).save(path / f"view_{k:05d}.npz")
     write_views_manifest(path, scene.name, scene_path, n)
     return path
-    images.mkdir(parents=True)
-    yy, xx = np.mgrid[0:96, 0:192] / 192
-    for k in range(frames):
-        rgb = np.stack([0.5 + 0.4 * np.sin((3 + c) * (xx + c * yy + 0.02 * k) * np.pi) for c in range(3)], -1)
-        Image.fromarray((rgb * 255).astype(np.uint8)).save(images / f"{k:04d}.png")
-    return path
