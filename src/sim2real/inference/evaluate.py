@@ -186,8 +186,18 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
         if s.anchors else {}
     rows_shown = [r for r in ROWS if s.anchors or r in ("model", "a_ref")]
 
+    # ---- real images for FID/KID, the proxy and style sources ----
+    rng = np.random.default_rng(s.seed)
+    use = real_set.images
+    if len(use) > s.max_real:
+        use = [use[i] for i in sorted(rng.choice(len(use), s.max_real, replace=False))]
+    real_imgs = [fit_image(load_rgb(p), H, W) for p in use]
+    real_t = to_nchw(real_imgs)
+
     # ---- random views: translate, reference rendering, ceiling, floor ----
     t0 = time.perf_counter()
+    variants: dict[str, list] = {}
+    style_rng = np.random.default_rng((s.seed, 1))
     counts = [s.views // len(scenes) + (1 if k < s.views % len(scenes) else 0) for k in range(len(scenes))]
     views: dict[str, list] = {r: [] for r in rows_shown}
     gen_liver = []
@@ -199,7 +209,9 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
             continue
         cams = sample_poses(caster, n, H, W, fov, seed=s.seed + 1000 * k)
         for chunk in chunked(iter_gbuffers(d, cams, s.workers, s.batch, caster=caster), s.batch):
-            views["model"].extend(model.translate_gbuffers(sc.name, chunk, s.batch))
+            styles = [real_imgs[int(i)] for i in style_rng.integers(0, len(real_imgs), len(chunk))]
+            for name, frames in model.translate_views(sc.name, chunk, styles, s.seed + len(gen_liver), s.batch).items():
+                variants.setdefault(name, []).extend(frames)
             for g in chunk:
                 i = len(gen_liver)
                 gen_liver.append(g.class_index() == 0)
@@ -209,23 +221,20 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
                     views["floor"].append(anchors[sc.name].floor(g, _VIEW_INDEX0 + i))
             bar.update(len(chunk))
     bar.close()
-    gen = views["model"]
+    # a method with several translations per view (styles) is scored on all of them; the first is
+    # the one shown beside the other rows
+    views["model"] = next(iter(variants.values()))
+    scored = {**views, "model": [f for frames in variants.values() for f in frames]}
+    gen = scored["model"]
     seconds["views"] = time.perf_counter() - t0
 
-    # ---- real images for FID/KID and the proxy ----
-    rng = np.random.default_rng(s.seed)
-    use = real_set.images
-    if len(use) > s.max_real:
-        use = [use[i] for i in sorted(rng.choice(len(use), s.max_real, replace=False))]
-    real_imgs = [fit_image(load_rgb(p), H, W) for p in use]
-    real_t = to_nchw(real_imgs)
     realism: dict[str, dict] = {r: {} for r in rows_shown}
 
     # ---- FID / KID ----
     reasons: dict[str, str | None] = {"fid": None, "dice": None, "of_error": None, "orb": None, "revisit": None}
     fid = {"fid": None, "kid_mean": None, "kid_std": None}
     fid_info = {"n_real": len(real_imgs), "n_gen": len(gen), "kid_subset_size": None, "kid_subsets": s.kid_subsets,
-                "weights": status.get("path")}
+                "weights": status.get("path"), "variants": [v or "default" for v in variants]}
     t0 = time.perf_counter()
     if inception is None:
         reasons["fid"] = status["reason"]
@@ -238,7 +247,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
         for row in rows_shown:
             with warnings.catch_warnings():  # torchmetrics warns that KID keeps its features: known, bounded here
                 warnings.filterwarnings("ignore", message=".*will save all extracted features in buffer.*")
-                r = fid_kid(to_nchw(views[row]), real_t, inception, kid_subset_size=s.kid_subset_size,
+                r = fid_kid(to_nchw(scored[row]), real_t, inception, kid_subset_size=s.kid_subset_size,
                             kid_subsets=s.kid_subsets, batch_size=max(s.batch, 16), seed=s.seed)
             vals = {"fid": r["fid"], "kid_mean": r["kid_mean"], "kid_std": r["kid_std"]}
             vals = {k: (v if np.isfinite(v) else None) for k, v in vals.items()}
@@ -256,7 +265,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
 
     proxy = proxy_colour_texture_distance(to_nchw(gen), real_t)
     for row in rows_shown:
-        realism[row]["proxy"] = (proxy if row == "model" else proxy_colour_texture_distance(to_nchw(views[row]), real_t)
+        realism[row]["proxy"] = (proxy if row == "model" else proxy_colour_texture_distance(to_nchw(scored[row]), real_t)
                                  )["proxy_colour_texture_distance"]
     del real_t
 
@@ -275,7 +284,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
         dice_info.update(info)
         gt = np.stack([fit_image(m.astype(np.uint8), s.seg_height, s.seg_width, nearest=True).astype(bool) for m in gen_liver])
         for row in rows_shown:
-            dice_info["rows"][row] = d = dice_of(segs, views[row], gt, s)
+            dice_info["rows"][row] = d = dice_of(segs, scored[row], np.concatenate([gt] * (len(scored[row]) // len(gt))), s)
             realism[row]["dice"] = d["value"]
         dice.update(dice=dice_info["rows"]["model"]["value"], dice_a_ref=dice_info["rows"]["a_ref"]["value"],
                     dice_real_held_out=info["held_out_dice"]["value"],

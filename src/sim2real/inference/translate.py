@@ -118,6 +118,33 @@ class TrainedModel:
             raise UserError(f"scene '{name}'{src} has {len(classes)} objects, but the run's texture of '{name}' "
                             f"has {info.num_objects}")
 
+    @torch.inference_mode()
+    def translate_views(self, scene_name: str, gbuffers: Sequence[GBuffer], real: Sequence[np.ndarray] | None = None,
+                        seed: int = 0, batch: int = DEFAULT_BATCH) -> dict[str, list[np.ndarray]]:
+        """Unrelated views as a realism evaluation scores them (:meth:`Method.translate_views`):
+        {variant name: uint8 (H, W, 3) frames}, one frame per view in each variant. ``real``: one
+        uint8 real image per view, a style source for methods with styles (``ssim_munit`` then
+        adds a 'real_style' variant); ``seed`` seeds every random draw."""
+        info = self.scene(scene_name)
+        gbuffers = list(gbuffers)
+        gen = torch.Generator().manual_seed(int(seed))
+        out: dict[str, list[np.ndarray]] = {}
+        for i in range(0, len(gbuffers), batch):
+            chunk = gbuffers[i : i + batch]
+            for cls in {tuple(g.classes) for g in chunk}:
+                self.check_classes(scene_name, cls)
+            b = self.method.inference_batch(chunk, info.index, self.device)
+            r = None
+            if real is not None:
+                from sim2real.inference.realset import to_nchw
+
+                r = (to_nchw([np.asarray(x) for x in real[i : i + batch]]).to(self.device) / 127.5) - 1.0
+            with precision.autocast(self.device, self.amp):
+                variants = self.method.translate_views(self.gen, b, r, gen)
+            for name, frames in variants:
+                out.setdefault(name, []).extend(_to_uint8(frames))
+        return out
+
     def sequence(self, scene_name: str, batch: int = DEFAULT_BATCH) -> "FrameSequence":
         """A translator for one sequence of ``scene_name``: feed it consecutive chunks of G-buffers
         (:meth:`FrameSequence.translate`); a time-dependent method carries its state across chunks."""
@@ -133,6 +160,12 @@ class TrainedModel:
         if self.time_independent:
             return self.sequence(scene_name, batch).translate(gbuffers)
         return [self.sequence(scene_name, batch).translate([g])[0] for g in gbuffers]
+
+
+def _to_uint8(images: torch.Tensor) -> list[np.ndarray]:
+    """(B, 3, H, W) in [-1, 1] -> B uint8 (H, W, 3) arrays."""
+    u8 = ((images.float().clamp(-1.0, 1.0) + 1.0) * 127.5).round().to(torch.uint8)
+    return [np.ascontiguousarray(f) for f in u8.permute(0, 2, 3, 1).cpu().numpy()]
 
 
 class FrameSequence:
@@ -158,9 +191,7 @@ class FrameSequence:
         pad_to = self.batch if m.method.time_independent else n
         with precision.autocast(m.device, m.amp):
             b_hat = self.translator.push(gbuffers + [gbuffers[-1]] * (pad_to - n))
-        u8 = ((b_hat.float().clamp(-1.0, 1.0) + 1.0) * 127.5).round().to(torch.uint8)
-        u8 = u8[:n].permute(0, 2, 3, 1).cpu().numpy()
-        return [np.ascontiguousarray(f) for f in u8]
+        return _to_uint8(b_hat[:n])
 
     def translate(self, gbuffers: Sequence[GBuffer]) -> list[np.ndarray]:
         """The next frames of the sequence -> uint8 (H, W, 3) RGB frames, in order."""
