@@ -82,12 +82,13 @@ def test_checkpoint_write_is_atomic(tmp_path):
     assert os.listdir(path.parent) == ["last.pt"]  # no temporary left behind
 
 
-def test_kill_9_then_resume(tmp_path, inputs):
+@pytest.mark.parametrize("method", ["ours", "ssim_munit"])  # the paper's method and a baseline
+def test_kill_9_then_resume(tmp_path, inputs, method):
     scenes, real = inputs
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(SRC)}
-    cmd = [sys.executable, "-m", "sim2real.cli.main", "train", "--preset", "tiny", "--scenes", str(scenes),
-           "--real", str(real), "--out", str(out), "--device", "cpu", "--no-progress"]
+    cmd = [sys.executable, "-m", "sim2real.cli.main", "train", "--preset", "tiny", "--method", method, "--scenes",
+           str(scenes), "--real", str(real), "--out", str(out), "--device", "cpu", "--no-progress"]
     proc = subprocess.Popen(cmd + ["--iterations", "100000", "--checkpoint-every", "4"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     last, metrics = out / "checkpoints" / "last.pt", out / "metrics.jsonl"
@@ -109,7 +110,7 @@ def test_kill_9_then_resume(tmp_path, inputs):
     done = subprocess.run(cmd[:4] + ["--out", str(out), "--resume", "--iterations", str(target), "--no-progress"],
                           env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert load_checkpoint(last)["step"] == target
+    assert load_checkpoint(last)["step"] == target and load_checkpoint(last)["method"] == method
     assert f"step {target}" in done.stdout
     # what the killed run logged beyond its checkpoint was dropped on resume: no repeated steps
     import json

@@ -191,6 +191,7 @@ def _train(name: str, cfg, s: BenchmarkSettings, scenes: list[Path], real: Path,
     done, progress = run / "done.json", run / "progress.json"
     if done.is_file():
         return json.loads(done.read_text())
+    _say(f"{name}: training ({'%g min' % s.minutes if s.minutes is not None else '%d iterations' % s.iterations})")
     last = run / "checkpoints" / "last.pt"
     spent = json.loads(progress.read_text())["seconds"] if progress.is_file() and last.is_file() else 0.0
     if not last.is_file():
@@ -247,7 +248,6 @@ def run_benchmark(out, s: BenchmarkSettings, scenes=None, real=None, trajectorie
     eval_scenes = sim[: len(trajectories)]
     trained, metrics = {}, {}
     for name, cfg in configs.items():
-        _say(f"{name}: training ({'%g min' % s.minutes if s.minutes is not None else '%d iterations' % s.iterations})")
         trained[name] = _train(name, cfg, s, sim, real_dir, out)
     for k, name in enumerate(configs):
         tdir = out / "translations" / name
