@@ -29,7 +29,7 @@ def bench(capsys, out, *extra) -> tuple[int, str]:
 @pytest.fixture(scope="module")
 def everything(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench") / "all"
-    assert main(["benchmark", "--out", str(out), *TINY]) == 0
+    assert main(["benchmark", "--out", str(out), *TINY, "--parallel", "2"]) == 0  # two trainings at a time
     return out
 
 
@@ -39,6 +39,7 @@ def test_every_method_and_metric_in_the_table(everything):
     for name, e in table["methods"].items():
         assert METRICS <= set(e["metrics"]), (name, METRICS - set(e["metrics"]))
         assert e["train"]["iterations"] == 2 and e["train"]["budget"] == {"iterations": 2} and e["train"]["seconds"] > 0
+        assert e["train"]["parallel"] == 2 and e["train"]["threads"] >= 1
         assert (everything / "videos" / f"{name}.mp4").stat().st_size > 0
         # a time-independent method's revisit equals its forward figures; OF-UNIT's are its own
         same = e["metrics"]["revisit_orb_1_accuracy"] == e["metrics"]["orb_1_accuracy"]
@@ -59,7 +60,9 @@ def test_every_method_and_metric_in_the_table(everything):
 def test_a_killed_benchmark_resumes_without_retraining(everything, tmp_path, capsys):
     out = tmp_path / "copy"
     shutil.copytree(everything, out)
-    # as if killed during ours_no_vc's evaluation: its metrics and the table are not there yet
+    # as if killed at the end of ours_no_vc's training (its done marker not yet written) and so
+    # before its evaluation: its metrics and the table are not there yet
+    (out / "runs" / "ours_no_vc" / "done.json").unlink()
     shutil.rmtree(out / "evaluations" / "ours_no_vc")
     (out / "evaluations" / "ours_no_vc").mkdir()  # a half-written folder
     (out / "table.json").unlink()
@@ -68,7 +71,9 @@ def test_a_killed_benchmark_resumes_without_retraining(everything, tmp_path, cap
     code, err = bench(capsys, out, "--resume")
     assert code == 0, err
     assert ckpt.stat().st_mtime_ns == before  # not retrained
-    assert "training" not in err and "ours_no_vc: evaluation" in err and "ours: evaluation" not in err
+    assert "ours: training" not in err and "ours: evaluation" not in err
+    assert "ours_no_vc: training" in err and "ours_no_vc: evaluation" in err
+    assert json.loads((out / "runs" / "ours_no_vc" / "done.json").read_text())["iterations"] == 2  # resumed at 2
     assert list(json.loads((out / "table.json").read_text())["methods"]) == list(METHOD_PRESETS)
 
 

@@ -42,6 +42,8 @@ def register(sub) -> None:
     p.add_argument("--sequence-frames", type=positive_int, default=30, help="frames per embedded real sequence")
     p.add_argument("--fid-weights", default=None, help="pt_inception-2015-12-05 weights for FID/KID (optional)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    p.add_argument("--parallel", type=positive_int, default=1,
+                   help="methods trained at once, each on an equal share of the cores (default 1)")
     p.add_argument("--resume", action="store_true", help="continue a killed benchmark (finished methods are kept)")
     add_motion_args(p)
     p.set_defaults(func=run)
@@ -57,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
                           seed=args.seed, device=args.device, real_images=args.real_images,
                           sequences=args.real_sequences, sequence_frames=args.sequence_frames, frames=args.frames,
                           eval_views=args.eval_views, seg_iterations=args.seg_iterations,
-                          trajectory=motion_kwargs(args))
+                          trajectory=motion_kwargs(args), parallel=args.parallel)
     table = run_benchmark(args.out, s, scenes=args.scenes, real=args.real, trajectories=args.trajectory,
                           resume=args.resume, fid_weights=args.fid_weights)
     print(f"benchmark written to {args.out}: table.md, table.json, report.html, videos/ "

@@ -64,6 +64,10 @@ class BenchmarkSettings:
     seg_iterations: int = 600
     trajectory: dict = field(default_factory=dict)
     """Motion budget of the generated test paths (make_trajectory keywords)."""
+    parallel: int = 1
+    """Methods trained at once, each in its own process on ``cores // parallel`` threads (every
+    method then trains under the same conditions; on a 2-core CPU two single-thread trainings
+    make more steps in all than one two-thread training after the other)."""
 
 
 def _say(msg: str) -> None:
@@ -152,7 +156,8 @@ def check(s: BenchmarkSettings, out: Path, scenes, real, trajectories, resume: b
 
 def _settings_json(s: BenchmarkSettings, scenes, real, trajectories) -> dict:
     res = lambda p: str(Path(p).resolve())  # noqa: E731
-    return {**dataclasses.asdict(s), "scenes": None if scenes is None else [res(d) for d in scenes],
+    kept = {k: v for k, v in dataclasses.asdict(s).items() if k != "parallel"}  # how, not what: may change
+    return {**kept, "scenes": None if scenes is None else [res(d) for d in scenes],
             "real": None if real is None else res(real),
             "trajectories": None if trajectories is None else [res(t) for t in trajectories]}
 
@@ -214,10 +219,70 @@ def _train(name: str, cfg, s: BenchmarkSettings, scenes: list[Path], real: Path,
         trainer.close()
     if trainer.stopped_by:
         raise UserError(f"training of {name} was stopped; continue with --resume")
+    import torch
+
     rec = {"method": name, "iterations": trainer.step, "seconds": round(spent + time.perf_counter() - t0, 1),
-           "budget": {"minutes": s.minutes} if s.minutes is not None else {"iterations": s.iterations}}
+           "budget": {"minutes": s.minutes} if s.minutes is not None else {"iterations": s.iterations},
+           "threads": torch.get_num_threads(), "parallel": s.parallel}
     write(done, rec)
     return rec
+
+
+def train_job(job_file: str) -> None:
+    """Entry point of one training process of a parallel benchmark (see :func:`_train_all`)."""
+    from sim2real.config import TrainConfig, from_dict
+
+    job = json.loads(Path(job_file).read_text())
+    import torch
+
+    torch.set_num_threads(job["threads"])
+    s = BenchmarkSettings(**job["settings"])
+    _train(job["name"], from_dict(TrainConfig, job["config"]), s, [Path(d) for d in job["scenes"]], Path(job["real"]),
+           Path(job["out"]))
+
+
+def _train_all(configs: dict, s: BenchmarkSettings, scenes: list[Path], real: Path, out: Path) -> dict:
+    """Train every method for its budget: one after the other, or ``s.parallel`` at a time, each
+    in its own process with an equal share of the cores."""
+    import os
+    import subprocess
+
+    from sim2real.config import to_dict
+    from sim2real.threads import usable_cores
+
+    pending = [n for n in configs if not (out / "runs" / n / "done.json").is_file()]
+    if s.parallel > 1 and len(pending) > 1:
+        threads = max(1, usable_cores() // s.parallel)
+        _say(f"training {len(pending)} methods, {s.parallel} at a time on {threads} thread(s) each")
+        running: list[tuple[str, subprocess.Popen, Path]] = []
+        queue = list(pending)
+        while queue or running:
+            while queue and len(running) < s.parallel:
+                name = queue.pop(0)
+                (out / "jobs").mkdir(exist_ok=True)
+                job = out / "jobs" / f"{name}.json"
+                atomic_write_json(job, {"name": name, "config": to_dict(configs[name]), "settings": dataclasses.asdict(s),
+                                        "scenes": [str(d) for d in scenes], "real": str(real), "out": str(out),
+                                        "threads": threads})
+                log = out / "jobs" / f"{name}.log"
+                env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
+                with open(log, "w") as f:
+                    proc = subprocess.Popen([sys.executable, "-c", "import sys; from sim2real.comparison.run import "
+                                             "train_job; train_job(sys.argv[1])", str(job)], stdout=f, stderr=f, env=env)
+                running.append((name, proc, log))
+            time.sleep(1.0)
+            for item in list(running):
+                name, proc, log = item
+                if proc.poll() is None:
+                    continue
+                running.remove(item)
+                if proc.returncode != 0:
+                    for _, p, _ in running:
+                        p.terminate()  # they stop after their step with a checkpoint
+                        p.wait()
+                    tail = [ln for ln in log.read_text().splitlines() if ln.strip()][-1:] or ["(no output)"]
+                    raise UserError(f"training of {name} failed ({tail[0]}); log {log}; continue with --resume")
+    return {n: _train(n, cfg, s, scenes, real, out) for n, cfg in configs.items()}
 
 
 def run_benchmark(out, s: BenchmarkSettings, scenes=None, real=None, trajectories=None, resume: bool = False,
@@ -246,9 +311,8 @@ def run_benchmark(out, s: BenchmarkSettings, scenes=None, real=None, trajectorie
                                 cfg0.data.fov_x_deg, seed=s.seed + k, **s.trajectory).save(path)
             trajectories.append(path)
     eval_scenes = sim[: len(trajectories)]
-    trained, metrics = {}, {}
-    for name, cfg in configs.items():
-        trained[name] = _train(name, cfg, s, sim, real_dir, out)
+    metrics = {}
+    trained = _train_all(configs, s, sim, real_dir, out)
     for k, name in enumerate(configs):
         tdir = out / "translations" / name
         if not (tdir / "translate.json").is_file():
