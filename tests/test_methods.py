@@ -15,7 +15,7 @@ from sim2real.config import TrainConfig, from_dict, load_yaml, preset, save_yaml
 from sim2real.errors import UserError
 from sim2real.methods import METHOD_PRESETS, get_method, method_config
 from toy_methods import ToyConfig, toy_methods  # noqa: F401  (fixture)
-from train_data import tiny_config
+from train_data import resume_run, tiny_config, train_logged
 
 
 @pytest.mark.parametrize("name", sorted(METHOD_PRESETS))
@@ -59,7 +59,6 @@ def test_format_1_configs_are_migrated():
 
 def test_a_foreign_method_trains_resumes_and_translates(toy_methods, train_inputs, tmp_path, procedural_caster):
     from sim2real.engine.checkpoint import load_checkpoint
-    from sim2real.engine.trainer import Trainer
     from sim2real.inference.translate import load_run
     from sim2real.scene.trajectory import sample_poses
 
@@ -67,23 +66,14 @@ def test_a_foreign_method_trains_resumes_and_translates(toy_methods, train_input
     cfg = preset("tiny")
     cfg.method = ToyConfig(gain=3.0)
     cfg.iterations, cfg.checkpoint_every = 3, 3
-    trainer = Trainer(cfg, [scenes], real, tmp_path / "run", progress=False)
-    seen = {}
-    trainer.hooks.append(lambda s, v: seen.__setitem__(s, v))
-    trainer.train()
-    trainer.close()
+    trainer, seen = train_logged(cfg, scenes, real, tmp_path / "run")
     assert sorted(seen) == [0, 1, 2]
     assert seen[2]["gen/total"] == pytest.approx(3.0 * seen[2]["gen/fit"], rel=1e-6)  # weighted by the method
     state = load_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt")
     assert state["method"] == "toy_plugin" and state["config"]["method"] == {"name": "toy_plugin", "gain": 3.0}
     # resume from the saved YAML-able config, two more steps
-    cfg2 = from_dict(TrainConfig, state["config"])
-    cfg2.iterations = 5
-    resumed = Trainer(cfg2, None, None, tmp_path / "run", resume=tmp_path / "run" / "checkpoints" / "last.pt",
-                      progress=False)
-    assert resumed.step == 3
-    resumed.train()
-    resumed.close()
+    resumed, start = resume_run(tmp_path / "run", 5)
+    assert start == 3 and resumed.step == 5
     model = load_run(tmp_path / "run", "cpu")
     g = procedural_caster.render(sample_poses(procedural_caster, 1, 64, 128, 75.0, seed=3)[0])
     frame = model.translate_gbuffers(model.scenes[0], [g])[0]

@@ -11,7 +11,7 @@ from torch import nn
 from sim2real.config import validate
 from sim2real.errors import UserError
 from sim2real.methods import get_method
-from train_data import real_video_dir, tiny_config
+from train_data import real_video_dir, resume_run, tiny_config, train_logged, weighted_total
 
 
 @pytest.fixture(autouse=True)
@@ -166,9 +166,7 @@ def test_a_real_folder_without_sequences_is_refused_by_the_cli(capsys, tmp_path,
 
 @pytest.mark.parametrize("name", ["recycle", "ssim_recycle"])
 def test_trains_resumes_and_translates_a_sequence(name, train_inputs, tmp_path, procedural_caster):
-    from sim2real.config import TrainConfig, from_dict
     from sim2real.engine.checkpoint import load_checkpoint
-    from sim2real.engine.trainer import Trainer
     from sim2real.inference.translate import load_run
     from sim2real.scene.trajectory import linear_path
 
@@ -176,29 +174,21 @@ def test_trains_resumes_and_translates_a_sequence(name, train_inputs, tmp_path, 
     real = real_video_dir(tmp_path)
     cfg = tiny_config(name, iterations=2, checkpoint_every=2, image_every=1)
     run = tmp_path / "run"
-    trainer = Trainer(cfg, [scenes], real, run, progress=False)
-    seen = {}
-    trainer.hooks.append(lambda s, v: seen.__setitem__(s, v))
-    trainer.train()
-    trainer.close()
+    trainer, seen = train_logged(cfg, scenes, real, run)
     assert sorted(seen) == [0, 1]
-    w = trainer.method.loss_weights(1)
-    terms = {k[4:]: v for k, v in seen[1].items() if k.startswith("gen/") and k != "gen/total"}
-    assert ("ssim_ab" in terms) == (name == "ssim_recycle") and "recycle_a" in terms
-    assert seen[1]["gen/total"] == pytest.approx(sum(w[k] * v for k, v in terms.items()), rel=1e-5)
+    assert ("gen/ssim_ab" in seen[1]) == (name == "ssim_recycle") and "gen/recycle_a" in seen[1]
+    assert seen[1]["gen/total"] == pytest.approx(weighted_total(trainer, seen[1], 1), rel=1e-5)
     assert (run / "samples").is_dir()
     state = load_checkpoint(run / "checkpoints" / "last.pt")
     assert state["step"] == 2 and state["method"] == "recycle"
     assert state["config"]["method"]["ssim"] == (name == "ssim_recycle")
     assert any(k.startswith("p_b.") for k in state["gen"])  # the predictors are checkpointed
 
-    cfg2 = from_dict(TrainConfig, state["config"])
-    cfg2.iterations = 4
-    resumed = Trainer(cfg2, None, None, run, resume=run / "checkpoints" / "last.pt", progress=False)
-    assert resumed.step == 2
-    torch.testing.assert_close(resumed.gen.p_a.state_dict(), trainer.gen.p_a.state_dict())
-    resumed.train()
-    resumed.close()
+    restored, start = resume_run(run, 2)  # nothing left to train: the restored state as it is
+    assert start == 2
+    torch.testing.assert_close(restored.gen.p_a.state_dict(), trainer.gen.p_a.state_dict())
+    resumed, start = resume_run(run, 4)
+    assert start == 2 and resumed.step == 4
     assert load_checkpoint(run / "checkpoints" / "last.pt")["step"] == 4
 
     model = load_run(run, "cpu")

@@ -12,7 +12,7 @@ from sim2real.config import GeneratorConfig, validate
 from sim2real.errors import UserError
 from sim2real.methods import get_method
 from sim2real.models.style import MLP, AdaIN, AdaINDecoder, StyleEncoder
-from train_data import tiny_config
+from train_data import resume_run, tiny_config, train_logged, weighted_total
 
 
 @pytest.fixture(autouse=True)
@@ -225,35 +225,23 @@ def test_config_errors_name_the_key():
 
 
 def test_trains_checkpoints_resumes_and_translates_a_sequence(train_inputs, tmp_path, procedural_caster):
-    from sim2real.config import TrainConfig, from_dict
     from sim2real.engine.checkpoint import load_checkpoint
-    from sim2real.engine.trainer import Trainer
     from sim2real.inference.translate import load_run
     from sim2real.scene.trajectory import sample_poses
 
     scenes, real = train_inputs
     cfg = tiny_config("ssim_munit", iterations=2, checkpoint_every=2, image_every=1)
-    trainer = Trainer(cfg, [scenes], real, tmp_path / "run", progress=False)
-    seen = {}
-    trainer.hooks.append(lambda s, v: seen.__setitem__(s, v))
-    trainer.train()
-    trainer.close()
+    trainer, seen = train_logged(cfg, scenes, real, tmp_path / "run")
     assert sorted(seen) == [0, 1]
-    w = trainer.method.loss_weights(1)
-    terms = {k[4:]: v for k, v in seen[1].items() if k.startswith("gen/") and k != "gen/total"}
-    assert set(terms) == set(w) - {"dis_a", "dis_b"}
-    assert seen[1]["gen/total"] == pytest.approx(sum(w[k] * v for k, v in terms.items()), rel=1e-5)
+    terms = {k[4:] for k in seen[1] if k.startswith("gen/") and k != "gen/total"}
+    assert terms == set(trainer.method.loss_weights(1)) - {"dis_a", "dis_b"}
+    assert seen[1]["gen/total"] == pytest.approx(weighted_total(trainer, seen[1], 1), rel=1e-5)
     state = load_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt")
     assert state["step"] == 2 and state["method"] == "ssim_munit"
     assert state["config"]["method"]["name"] == "ssim_munit" and state["config"]["method"]["style_dim"] == 8
 
-    cfg2 = from_dict(TrainConfig, state["config"])
-    cfg2.iterations = 3
-    resumed = Trainer(cfg2, None, None, tmp_path / "run", resume=tmp_path / "run" / "checkpoints" / "last.pt",
-                      progress=False)
-    assert resumed.step == 2
-    resumed.train()
-    resumed.close()
+    _, start = resume_run(tmp_path / "run", 3)
+    assert start == 2
     assert load_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt")["step"] == 3
 
     model = load_run(tmp_path / "run", "cpu")

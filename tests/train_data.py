@@ -80,3 +80,42 @@ def views_dir(base: Path, scene_path: Path, n: int = 4, height: int = 64, width:
         caster.render(cam).save(path / f"view_{k:05d}.npz")
     write_views_manifest(path, scene.name, scene_path, n)
     return path
+
+
+def train_logged(cfg, scenes, real, run):
+    """Train ``cfg`` on one scene folder into ``run``; returns (trainer, {step: logged values})."""
+    from sim2real.engine.trainer import Trainer
+
+    trainer = Trainer(cfg, [scenes], real, run, progress=False)
+    seen: dict = {}
+    trainer.hooks.append(lambda s, v: seen.__setitem__(s, v))
+    try:
+        trainer.train()
+    finally:
+        trainer.close()
+    return trainer, seen
+
+
+def weighted_total(trainer, values: dict, step: int) -> float:
+    """sum(weight * term) of the generator terms logged at ``step``, by the method's weights."""
+    w = trainer.method.loss_weights(step)
+    return sum(w[k[4:]] * v for k, v in values.items() if k.startswith("gen/") and k != "gen/total")
+
+
+def resume_run(run, iterations: int):
+    """Resume ``run`` from its last checkpoint with its own saved configuration until ``iterations``;
+    returns the trainer (``.step`` is where it ended) and the step it resumed at."""
+    from sim2real.config import TrainConfig, from_dict
+    from sim2real.engine.checkpoint import load_checkpoint
+    from sim2real.engine.trainer import Trainer
+
+    last = Path(run) / "checkpoints" / "last.pt"
+    cfg = from_dict(TrainConfig, load_checkpoint(last)["config"])
+    cfg.iterations = iterations
+    trainer = Trainer(cfg, None, None, run, resume=last, progress=False)
+    start = trainer.step
+    try:
+        trainer.train()
+    finally:
+        trainer.close()
+    return trainer, start

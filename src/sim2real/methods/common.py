@@ -9,6 +9,16 @@ import torch
 import torch.nn.functional as F
 
 from sim2real.losses import lsgan_dis_loss
+from sim2real.methods.base import Stage
+
+
+class DisStage(Stage):
+    """The two discriminators of a two-domain method: D_A and D_B."""
+
+    def __init__(self, dis_a: torch.nn.Module, dis_b: torch.nn.Module):
+        super().__init__()
+        self.dis_a = dis_a
+        self.dis_b = dis_b
 
 
 def translator_terms(t, x_a: torch.Tensor, x_b: torch.Tensor) -> dict[str, torch.Tensor]:

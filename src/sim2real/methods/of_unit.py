@@ -59,8 +59,8 @@ from sim2real.config import MethodConfig, register_method_config
 from sim2real.losses import warp_backward
 from sim2real.losses.consistency import masked_l1_loss
 from sim2real.methods.base import Batch, OptimGroup, Out, SequenceTranslator, rgb
-from sim2real.methods.common import translator_terms
-from sim2real.methods.ours import DisStage, GenStage, Ours
+from sim2real.methods.common import DisStage, translator_terms
+from sim2real.methods.ours import GenStage, Ours
 
 PREV_CHANNELS = 3
 """Channels of the warped previous output in domain A (in place of ours' texture features)."""

@@ -23,7 +23,7 @@ from torch import nn
 from sim2real.config import MethodConfig, TextureConfig, register_method_config
 from sim2real.losses import l1, lsgan_gen_loss, ms_ssim_loss, view_consistency, warp_backward
 from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, rgb
-from sim2real.methods.common import dis_terms, pad_apply, translator_terms, translator_weights
+from sim2real.methods.common import DisStage, dis_terms, pad_apply, translator_terms, translator_weights
 
 
 @register_method_config
@@ -71,13 +71,6 @@ class GenStage(Stage):
         self.translator = translator
         self.textures = textures
         self.scene_keys = list(scene_keys)
-
-
-class DisStage(Stage):
-    def __init__(self, dis_a: nn.Module, dis_b: nn.Module):
-        super().__init__()
-        self.dis_a = dis_a
-        self.dis_b = dis_b
 
 
 class Ours(Method):

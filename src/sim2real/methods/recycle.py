@@ -67,7 +67,7 @@ from torch import nn
 from sim2real.config import MethodConfig, register_method_config
 from sim2real.losses import l1, lsgan_dis_loss, lsgan_gen_loss, ms_ssim_loss
 from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, rgb
-from sim2real.methods.common import pad_apply
+from sim2real.methods.common import DisStage, pad_apply
 
 FRAMES = 3
 
@@ -133,13 +133,6 @@ class RecycleGen(Stage):
         self.g_ab, self.g_ba, self.p_a, self.p_b = g_ab, g_ba, p_a, p_b
 
 
-class RecycleDis(Stage):
-    def __init__(self, dis_a: nn.Module, dis_b: nn.Module):
-        super().__init__()
-        self.dis_a = dis_a
-        self.dis_b = dis_b
-
-
 class Recycle(Method):
     """See the module docstring."""
 
@@ -162,13 +155,13 @@ class Recycle(Method):
         pred = lambda: UNetPredictor(3, m.pred_filters, m.pred_levels, m.pred_norm)
         return RecycleGen(gen(), gen(), pred(), pred())
 
-    def build(self, sources) -> tuple[RecycleGen, RecycleDis]:
+    def build(self, sources) -> tuple[RecycleGen, DisStage]:
         from sim2real.models.discriminator import MsImageDis
 
         d = self.cfg.discriminator
-        return self._stage(), RecycleDis(MsImageDis(3, d), MsImageDis(3, d))
+        return self._stage(), DisStage(MsImageDis(3, d), MsImageDis(3, d))
 
-    def optim_groups(self, gen: RecycleGen, dis: RecycleDis) -> list[OptimGroup]:
+    def optim_groups(self, gen: RecycleGen, dis: DisStage) -> list[OptimGroup]:
         return [OptimGroup("net", list(gen.parameters()), self.mc.lr, "gen"),
                 OptimGroup("dis", list(dis.parameters()), self.mc.lr, "dis")]
 
@@ -209,7 +202,7 @@ class Recycle(Method):
             out.update(idt_b01=ga[2 * B :], idt_a01=gb[2 * B :])
         return out
 
-    def dis_losses(self, dis: RecycleDis, batch: Batch, out: Out) -> dict[str, torch.Tensor]:
+    def dis_losses(self, dis: DisStage, batch: Batch, out: Out) -> dict[str, torch.Tensor]:
         a = [batch[f"a_ref_{t}"] for t in range(FRAMES)]
         b = [batch[f"real_{t}"] for t in range(FRAMES)]
 
@@ -224,7 +217,7 @@ class Recycle(Method):
                 "dis_a": term(dis.dis_a, torch.cat((out["a_hat01"], out["a_next"], out["pred_a2"])),
                               torch.cat((a[0], a[1], a[2], a[2])))}
 
-    def gen_losses(self, dis: RecycleDis, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
+    def gen_losses(self, dis: DisStage, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
         f = {k: v.float() for k, v in out.items()}
         a = [batch[f"a_ref_{t}"].float() for t in range(FRAMES)]
         b = [batch[f"real_{t}"].float() for t in range(FRAMES)]

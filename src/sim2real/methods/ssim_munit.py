@@ -60,7 +60,7 @@ import torch
 from sim2real.config import MethodConfig, register_method_config
 from sim2real.losses import l1, lsgan_gen_loss, ms_ssim_loss
 from sim2real.methods.base import Batch, Method, OptimGroup, Out, SequenceTranslator, Stage, rgb
-from sim2real.methods.common import dis_terms, pad_apply, translator_weights
+from sim2real.methods.common import DisStage, dis_terms, pad_apply, translator_weights
 
 
 @register_method_config
@@ -111,13 +111,6 @@ class MunitGen(Stage):
         self.gen_b = gen_b
 
 
-class MunitDis(Stage):
-    def __init__(self, dis_a: torch.nn.Module, dis_b: torch.nn.Module):
-        super().__init__()
-        self.dis_a = dis_a
-        self.dis_b = dis_b
-
-
 def seeded_normal(shape, *key: int) -> torch.Tensor:
     """N(0, 1) values of ``shape`` on the CPU from a generator seeded by the integers ``key``."""
     seed = int(np.random.SeedSequence([int(k) for k in key]).generate_state(1)[0])
@@ -164,13 +157,13 @@ class SsimMunit(Method):
         return MunitGen(StyleGenerator(3, g, m.style_dim, m.mlp_dim, m.mlp_layers),
                         StyleGenerator(3, g, m.style_dim, m.mlp_dim, m.mlp_layers))
 
-    def build(self, sources) -> tuple[MunitGen, MunitDis]:
+    def build(self, sources) -> tuple[MunitGen, DisStage]:
         from sim2real.models.discriminator import MsImageDis
 
         d = self.cfg.discriminator
-        return self._gen(), MunitDis(MsImageDis(3, d), MsImageDis(3, d))
+        return self._gen(), DisStage(MsImageDis(3, d), MsImageDis(3, d))
 
-    def optim_groups(self, gen: MunitGen, dis: MunitDis) -> list[OptimGroup]:
+    def optim_groups(self, gen: MunitGen, dis: DisStage) -> list[OptimGroup]:
         lr = self.cfg.optim.lr_net
         return [OptimGroup("net", list(gen.parameters()), lr, "gen"), OptimGroup("dis", list(dis.parameters()), lr, "dis")]
 
@@ -227,10 +220,10 @@ class SsimMunit(Method):
             out["b_cyc"] = gb.decode(c_b_rec, s_b_enc)
         return out
 
-    def dis_losses(self, dis: MunitDis, batch: Batch, out: Out) -> dict[str, torch.Tensor]:
+    def dis_losses(self, dis: DisStage, batch: Batch, out: Out) -> dict[str, torch.Tensor]:
         return dis_terms(dis, out)
 
-    def gen_losses(self, dis: MunitDis, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
+    def gen_losses(self, dis: DisStage, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
         f = {k: v.float() for k, v in out.items() if v.is_floating_point()}
         L = self.cfg.loss
         losses = {
