@@ -24,7 +24,6 @@ in-process or in a process pool) or a views folder through the model and writes
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import time
@@ -38,6 +37,7 @@ import torch.nn.functional as F
 
 from sim2real.engine import precision
 from sim2real.errors import UserError
+from sim2real.fileio import read_json_or_none
 from sim2real.render.gbuffer import GBuffer
 
 FORMAT = "sim2real-translate/1"
@@ -62,12 +62,10 @@ class SceneInfo:
 
 
 def _scene_classes(scene_dir: Path | None) -> tuple[str, ...] | None:
-    if scene_dir is None:
-        return None
+    spec = None if scene_dir is None else read_json_or_none(scene_dir / "scene.json")
     try:
-        spec = json.loads((scene_dir / "scene.json").read_text())
-        return tuple(str(o["class"]) for o in spec["objects"])
-    except (OSError, ValueError, KeyError, TypeError):
+        return None if spec is None else tuple(str(o["class"]) for o in spec["objects"])
+    except (KeyError, TypeError):
         return None
 
 
