@@ -146,7 +146,7 @@ class TrainPairs(torch.utils.data.Dataset):
         return np.random.default_rng((self.seed, self.rank, int(step)))
 
     def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
-        from sim2real.render.reference import reference_rendering
+        from sim2real.data.tensors import view_tensors
         from sim2real.render.warp import correspondences
 
         rng = self.rng(step)
@@ -169,10 +169,7 @@ class TrainPairs(torch.utils.data.Dataset):
         real = self.real.sample(rng, c.height, c.width, c.real_scale_min, c.real_scale_max)
         out = {"step": torch.tensor(int(step)), "scene": torch.tensor(k)}
         for tag, g in (("i", gi), ("j", gj)):
-            out[f"a_ref_{tag}"] = torch.from_numpy(reference_rendering(g).transpose(2, 0, 1) * 2.0 - 1.0)
-            out[f"object_id_{tag}"] = torch.from_numpy(g.object_id.astype(np.int64))
-            out[f"points_{tag}"] = torch.from_numpy(np.ascontiguousarray(g.points, dtype=np.float32))
-            out[f"normal_{tag}"] = torch.from_numpy(np.ascontiguousarray(g.normal, dtype=np.float32))
+            out.update({key: t[0] for key, t in view_tensors([g], tag).items()})  # one sample: no batch dim
         out["uv_ij"] = torch.from_numpy(uv)
         out["visible_ij"] = torch.from_numpy(visible)
         out["real"] = torch.from_numpy(np.ascontiguousarray(real))

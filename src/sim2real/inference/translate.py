@@ -117,19 +117,11 @@ class TrainedModel:
         return precision.autocast(self.device, self.amp)
 
     def _batch(self, gbuffers: list[GBuffer], index: int) -> dict[str, torch.Tensor]:
-        from sim2real.render.reference import reference_rendering
+        from sim2real.data.tensors import view_tensors
 
-        dev = self.device
-        a_ref = np.stack([reference_rendering(g).transpose(2, 0, 1) for g in gbuffers]) * 2.0 - 1.0
-        oid = np.stack([g.object_id.astype(np.int64) for g in gbuffers])
-        pts = np.stack([np.asarray(g.points, dtype=np.float32) for g in gbuffers])
-        nrm = np.stack([np.asarray(g.normal, dtype=np.float32) for g in gbuffers])
         return {
             "scene": torch.full((len(gbuffers),), index, dtype=torch.long),  # stays on the CPU (read by Python)
-            "a_ref_i": torch.from_numpy(a_ref.astype(np.float32)).to(dev),
-            "object_id_i": torch.from_numpy(oid).to(dev),
-            "points_i": torch.from_numpy(pts).to(dev),
-            "normal_i": torch.from_numpy(nrm).to(dev),
+            **{key: t.to(self.device) for key, t in view_tensors(gbuffers, "i").items()},
         }
 
     @torch.inference_mode()
