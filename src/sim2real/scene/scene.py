@@ -24,6 +24,7 @@ import numpy as np
 import trimesh
 
 from sim2real.errors import UserError
+from sim2real.fileio import read_json
 
 CLASSES: tuple[str, ...] = ("liver", "fat", "ligament", "abdominal_wall", "gallbladder")
 """Object classes in their fixed order (background = -1)."""
@@ -157,10 +158,7 @@ class Scene:
         spec_path = directory / "scene.json" if directory.is_dir() else directory
         if not spec_path.is_file():
             raise UserError(f"no scene at {directory} (expected a folder with scene.json)")
-        try:
-            spec = json.loads(spec_path.read_text())
-        except (OSError, ValueError) as e:
-            raise UserError(f"cannot read {spec_path}: {e}") from None
+        spec = read_json(spec_path, "scene description")
         root = spec_path.parent
         try:
             objects = []

@@ -27,7 +27,7 @@ from typing import Iterator
 import numpy as np
 
 from sim2real.errors import UserError
-from sim2real.fileio import atomic_write_text
+from sim2real.fileio import atomic_write_text, read_json_or_none
 from sim2real.scene.camera import Camera, intrinsics_from_fov, invert_rigid, look_at, rotation_to_quaternion
 from sim2real.scene.tum import read_tum
 
@@ -153,16 +153,9 @@ class Trajectory:
         K = np.array(header["K"]).reshape(3, 3)
         cams = [Camera(K, invert_rigid(c2w), height, width) for _, c2w in poses]
         fps = header.get("fps", [5.0])[0]
-        motion = None
-        side = side_file(path)
-        if side.is_file():
-            import json
-
-            try:
-                data = json.loads(side.read_text())
-                motion = data["motion"] if data.get("frames") == len(cams) else None
-            except (OSError, ValueError, KeyError, TypeError):
-                motion = None  # a side file that does not describe these poses is not used
+        # A side file that is missing, unreadable or does not describe these poses is not used.
+        data = read_json_or_none(side_file(path))
+        motion = data.get("motion") if data is not None and data.get("frames") == len(cams) else None
         return cls(cams, fps=fps if fps > 0 else 5.0, motion=motion)
 
 

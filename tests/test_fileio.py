@@ -1,0 +1,76 @@
+"""read_json: the parsed object of a good file, one UserError line naming the file otherwise."""
+
+import pytest
+
+from sim2real.data.views import list_views
+from sim2real.errors import UserError
+from sim2real.fileio import read_json, read_json_or_none
+from sim2real.scene.scene import Scene
+
+
+def _one_line(excinfo) -> str:
+    msg = str(excinfo.value)
+    assert "\n" not in msg, msg
+    return msg
+
+
+def test_good_file(tmp_path):
+    f = tmp_path / "a.json"
+    f.write_text('{"count": 3, "names": ["x", "y"], "nested": {"k": 0.5}}\n')
+    assert read_json(f, "thing") == {"count": 3, "names": ["x", "y"], "nested": {"k": 0.5}}
+    assert read_json_or_none(f) == {"count": 3, "names": ["x", "y"], "nested": {"k": 0.5}}
+
+
+def test_missing_file(tmp_path):
+    f = tmp_path / "nope.json"
+    with pytest.raises(UserError) as e:
+        read_json(f, "views manifest")
+    assert _one_line(e) == f"cannot read views manifest {f}: No such file or directory"
+    assert read_json_or_none(f) is None
+
+
+def test_malformed_file(tmp_path):
+    f = tmp_path / "bad.json"
+    f.write_text('{"count": 3,\n "names": [}\n')
+    with pytest.raises(UserError) as e:
+        read_json(f, "scene description")
+    # The decoder's own words, with the line and column of the fault (line 2, column 12: the "}").
+    assert _one_line(e) == f"cannot read scene description {f}: not valid JSON (Expecting value: line 2 column 12 (char 24))"
+    assert read_json_or_none(f) is None
+
+
+@pytest.mark.parametrize("text,found", [("[1, 2]", "list"), ('"s"', "str"), ("7", "int")])
+def test_not_an_object(tmp_path, text, found):
+    f = tmp_path / "list.json"
+    f.write_text(text)
+    with pytest.raises(UserError) as e:
+        read_json(f)
+    assert _one_line(e) == f"cannot read JSON file {f}: expected a JSON object, found {found}"
+    assert read_json_or_none(f) is None
+
+
+def test_not_text_and_directory(tmp_path):
+    f = tmp_path / "bin.json"
+    f.write_bytes(b"\xff\xfe\x00{")
+    with pytest.raises(UserError) as e:
+        read_json(f, "x")
+    assert _one_line(e) == f"cannot read x {f}: not a UTF-8 text file"
+    d = tmp_path / "dir.json"
+    d.mkdir()
+    with pytest.raises(UserError) as e:
+        read_json(d, "x")
+    assert _one_line(e) == f"cannot read x {d}: Is a directory"
+
+
+def test_call_sites_name_their_file(tmp_path):
+    """A scene folder and a views folder with broken JSON: the error says which file and what."""
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    (scene / "scene.json").write_text("{not json")
+    with pytest.raises(UserError, match=r"^cannot read scene description .*scene\.json: not valid JSON"):
+        Scene.load(scene)
+    views = tmp_path / "views"
+    views.mkdir()
+    (views / "views.json").write_text("[]")
+    with pytest.raises(UserError, match=r"^cannot read views manifest .*views\.json: expected a JSON object, found list$"):
+        list_views(views)
