@@ -82,6 +82,11 @@ def test_evaluate_with_weights_and_labels(base, tmp_path, capsys):
     m = run_cli(capsys, base, out, labelled_real_dir(base), "--fid-weights", fake_fid_weights(base))
     check_keys(m)
     assert math.isfinite(m["fid"]) and math.isfinite(m["kid_mean"]) and m["reasons"]["fid"] is None
+    # detail = mean grey gradient as a share of the real images'; the stand-in's mottling and noise
+    # make the ceiling's views more detailed than the smooth, flat-coloured a_ref
+    p = m["proxy"]
+    assert m["rows"]["model"]["detail"] == pytest.approx(p["proxy_grad_mean_gen"] / p["proxy_grad_mean_real"])
+    assert m["rows"]["ceiling"]["detail"] > m["rows"]["a_ref"]["detail"] > 0
     assert m["fid_kid"]["n_gen"] == 4 and m["fid_kid"]["n_real"] == 6 and m["fid_kid"]["kid_subset_size"] == 4
     for key in ("dice_real_train", "dice_real_held_out"):  # 3 steps of training: unstable figures are None
         assert m[key] is None or 0.0 <= m[key] <= 1.0

@@ -265,8 +265,11 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
 
     proxy = proxy_colour_texture_distance(to_nchw(gen), real_t)
     for row in rows_shown:
-        realism[row]["proxy"] = (proxy if row == "model" else proxy_colour_texture_distance(to_nchw(scored[row]), real_t)
-                                 )["proxy_colour_texture_distance"]
+        p = proxy if row == "model" else proxy_colour_texture_distance(to_nchw(scored[row]), real_t)
+        realism[row]["proxy"] = p["proxy_colour_texture_distance"]
+        # detail: the row's mean grey gradient as a share of the real images' (1 = as detailed)
+        g_real = p["proxy_grad_mean_real"]
+        realism[row]["detail"] = p["proxy_grad_mean_gen"] / g_real if g_real > 0 else None
     del real_t
 
     # ---- Dice ----

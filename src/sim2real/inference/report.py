@@ -229,6 +229,7 @@ _CAL_METRICS = [
     ("revisit_orb_1_accuracy", "revisit ORB-1 accuracy", True), ("revisit_orb_10_accuracy", "revisit ORB-10 accuracy", True),
     ("revisit_of_error", "revisit OF error (px)", False),
     ("dice", "Dice (mean over segmenter seeds)", False), ("proxy", "proxy colour+texture distance (not FID)", False),
+    ("detail", "detail: mean grey gradient / the real images'", True),
     ("fid", "FID", False), ("kid", "KID", False),
 ]
 
