@@ -5,6 +5,7 @@ pass for every method preset."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -125,3 +126,37 @@ def test_inference_equals_the_training_forward_pass(name, request, tmp_path, pro
     diff = np.abs(got.astype(int) - want.astype(int))
     assert diff.max() <= 1 and (diff > 0).mean() < 1e-3, (diff.max(), (diff > 0).mean())
     assert got.std() > 1.0  # not a constant image
+
+
+def test_init_from_carries_the_networks_to_new_scenes(train_inputs, tmp_path, capsys):
+    """``--init-from``: a trained run's translator and discriminators, fresh textures for other scenes."""
+    import torch
+
+    from sim2real.cli.main import main
+    from sim2real.engine.checkpoint import load_checkpoint
+    from train_data import scene_dir
+
+    scenes, real = train_inputs
+    trainer, _ = train_logged(tiny_config(iterations=2, checkpoint_every=2, image_every=100), scenes, real,
+                              tmp_path / "src")
+    other = scene_dir(tmp_path, 12)
+    argv = ["train", "--preset", "tiny", "--scenes", str(other), "--real", str(real), "--device", "cpu", "--no-progress",
+            "--iterations", "1", "--init-from", str(tmp_path / "src")]
+    assert main([*argv, "--out", str(tmp_path / "new")]) == 0, capsys.readouterr().err
+    src = load_checkpoint(tmp_path / "src" / "checkpoints" / "last.pt")
+    step0 = load_checkpoint(tmp_path / "new" / "checkpoints" / "step_0000000.pt")
+    assert step0["step"] == 0 and step0["inputs"]["init_from"].endswith("last.pt")
+    for part in ("gen", "dis"):
+        moved = [k for k in src[part] if not k.startswith("textures.")]
+        assert moved and all(torch.equal(step0[part][k], src[part][k]) for k in moved), part
+    # the new scene's texture starts fresh: flat per-class colours, as any new run's
+    (new_tex,) = [v for k, v in step0["gen"].items() if k.startswith("textures.") and k.endswith(".texture")]
+    assert new_tex.shape[0] == len(json.loads((other / "scene.json").read_text())["objects"])
+    assert torch.equal(new_tex, new_tex[:, :1, :1, :1].expand_as(new_tex))
+    # another architecture is refused in one line, naming a weight, and leaves no run folder
+    code = main([*argv, "--out", str(tmp_path / "bad"), "--set", "generator.filters=16"])
+    err = capsys.readouterr().err
+    assert code == 2 and "does not fit this configuration" in err and "weight '" in err
+    assert not (tmp_path / "bad").exists()
+    code = main([*argv, "--out", str(tmp_path / "bad"), "--method", "ours_no_tex_vc"])
+    assert code == 2 and "does not fit" in capsys.readouterr().err

@@ -45,6 +45,8 @@ def register(sub) -> None:
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="where to train (default: config, auto)")
     p.add_argument("--set", dest="overrides", action="append", nargs="+", default=[], metavar="KEY=VALUE",
                    help="override any config field, e.g. --set method.vc=10 data.workers=4")
+    p.add_argument("--init-from", metavar="RUN", help="start from a trained run's (or checkpoint's) networks, "
+                                                      "with fresh neural textures for these scenes")
     p.add_argument("--resume", action="store_true",
                    help="continue RUN from RUN/checkpoints/last.pt (append it to the run's command, or give --out alone)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -141,8 +143,10 @@ def run(args: argparse.Namespace) -> int:
         if not args.real:
             raise UserError("no real image folder given (--real DIR)")
         cfg = build_config(args)
+    if args.init_from and args.resume:
+        raise UserError("--init-from starts a new run; it cannot be combined with --resume")
     trainer = Trainer(cfg, scenes=args.scenes, real=args.real, out=args.out, resume=path,
-                      progress=not args.no_progress, resume_state=state)
+                      progress=not args.no_progress, resume_state=state, init_from=args.init_from)
     try:
         if changes and trainer.dist.is_main:
             listed = ", ".join(f"{k} {_show(a)} -> {_show(b)}" for k, a, b in changes)

@@ -44,6 +44,16 @@ FORMAT = "sim2real-train/1"
 LAST = "last.pt"
 
 
+def find_run_checkpoint(path: str | os.PathLike) -> Path:
+    """A checkpoint file, or a run folder's ``checkpoints/last.pt``."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    if (path / "checkpoints" / LAST).is_file():
+        return path / "checkpoints" / LAST
+    raise UserError(f"{path} is neither a checkpoint file nor a run folder with checkpoints/{LAST}")
+
+
 def step_name(step: int) -> str:
     return f"step_{step:07d}.pt"
 

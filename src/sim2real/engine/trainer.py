@@ -74,6 +74,16 @@ def _state_method(state: dict) -> str:
     return section.get("name", "?") if isinstance(section, dict) else "ours"
 
 
+def _remove_if_only_lock(out: Path) -> None:
+    """Remove a run folder that holds nothing but its lock file (a fresh run that never started)."""
+    try:
+        if {p.name for p in out.iterdir()} <= {LOCK_NAME}:
+            (out / LOCK_NAME).unlink(missing_ok=True)
+            out.rmdir()
+    except OSError:
+        pass
+
+
 def loader_workers(workers: int) -> int:
     """``data.workers`` with -1 (automatic) resolved: the cores this process may use, shared by
     the ranks of its node (``LOCAL_WORLD_SIZE``, set by torchrun), less one for the training
@@ -123,9 +133,13 @@ class Trainer:
     """
 
     def __init__(self, cfg: TrainConfig, scenes=None, real=None, out=None, resume=None, progress: bool = True,
-                 resume_state: dict | None = None):
+                 resume_state: dict | None = None, init_from=None):
         validate(cfg)
+        if init_from is not None and (resume is not None or resume_state is not None):
+            raise UserError("--init-from starts a new run; it cannot be combined with --resume")
         self.cfg = cfg
+        self.init_from = None if init_from is None else ckpt.find_run_checkpoint(init_from)
+        init_state = None if self.init_from is None else ckpt.load_checkpoint(self.init_from)
         self.method = get_method(cfg)
         state = resume_state if resume_state is not None else (ckpt.load_checkpoint(resume) if resume is not None else None)
         if state is not None:
@@ -139,6 +153,10 @@ class Trainer:
         if not real:
             raise UserError("no real image folder given (--real DIR)")
         self.inputs = {"scenes": [str(Path(s).resolve()) for s in scenes], "real": str(Path(real).resolve())}
+        if state is None and self.init_from is not None:
+            self.inputs["init_from"] = str(self.init_from.resolve())
+        elif state is not None and state["inputs"].get("init_from"):
+            self.inputs["init_from"] = state["inputs"]["init_from"]
 
         probe = torch.device("cuda") if cfg.device == "cuda" or (cfg.device == "auto" and torch.cuda.is_available()) else torch.device("cpu")
         self.dist = distributed.setup(probe.type)
@@ -162,9 +180,11 @@ class Trainer:
         # rank 0 takes the run folder; a refusal there is raised on every rank, before any trains
         distributed.on_main(self.dist, lambda: self._take_run_folder(state, resume))
         try:
-            self._build(state, resume, progress)
+            self._build(state, resume, progress, init_state)
         except BaseException:
             self.lock.release()
+            if state is None and self.dist.is_main:  # a refused fresh run leaves no folder behind
+                _remove_if_only_lock(self.out)
             raise
 
     def _take_run_folder(self, state: dict | None, resume) -> None:
@@ -188,7 +208,7 @@ class Trainer:
             self.lock.release()
             raise
 
-    def _build(self, state: dict | None, resume, progress: bool) -> None:
+    def _build(self, state: dict | None, resume, progress: bool, init_state: dict | None = None) -> None:
         from sim2real.config import save_yaml
 
         cfg = self.cfg
@@ -199,6 +219,8 @@ class Trainer:
         self.gen, self.dis = self.method.build(self.sources)
         if state is not None:
             self.method.check_resume(state, self.sources, resume)
+        if init_state is not None:
+            self._init_weights(init_state)
         self.gen.to(self.device)
         self.dis.to(self.device)
         if self.channels_last:  # conv weights channels-last (4-D tensors only: the 5-D textures stay as they are)
@@ -227,6 +249,25 @@ class Trainer:
         """Called after every step with ``(step, {name: value})``; costs one sync per step."""
         self.stopped_by = 0
         """The signal (SIGTERM, SIGINT) that stopped the latest :meth:`train`, 0 for none."""
+
+    def _init_weights(self, state: dict) -> None:
+        """``--init-from``: the networks of a trained run (every weight the method calls
+        transferable, e.g. not the neural textures of its scenes), into this fresh run; optimiser
+        states, schedules and the step start anew."""
+        path = self.init_from
+        trained = _state_method(state)
+        if trained != self.method.name:
+            raise UserError(f"--init-from {path} was trained with method '{trained}', not '{self.method.name}'")
+        for part, module in (("gen", self.gen), ("dis", self.dis)):
+            own = {k: v for k, v in module.state_dict().items() if self.method.transferable(k)}
+            theirs = {k: v for k, v in state[part].items() if self.method.transferable(k)}
+            for k in sorted(set(own) | set(theirs)):
+                if k not in own or k not in theirs or own[k].shape != theirs[k].shape:
+                    shapes = [tuple(d[k].shape) if k in d else "absent" for d in (theirs, own)]
+                    raise UserError(f"--init-from {path} does not fit this configuration: {part} weight '{k}' is "
+                                    f"{shapes[0]} there and {shapes[1]} here (use the same generator and "
+                                    "discriminator settings)")
+            module.load_state_dict(theirs, strict=False)
 
     # --- checkpoints -----------------------------------------------------------------------------
 

@@ -146,6 +146,11 @@ class Method(ABC):
             raise UserError(f"checkpoint {where} was trained on scenes {[s['name'] for s in state['scenes']]}, "
                             f"not {[s.name for s in sources]}")
 
+    def transferable(self, key: str) -> bool:
+        """Whether state-dict entry ``key`` of the stages carries over to a run on other scenes
+        (``sim2real train --init-from``); a method marks its per-scene weights False."""
+        return True
+
     def ddp_find_unused(self, gen: Stage) -> bool:
         """Whether some generator parameters may get no gradient in a step (DDP must look for them)."""
         return False

@@ -116,6 +116,9 @@ class Ours(Method):
         groups.append(OptimGroup("dis", list(dis.parameters()), o.lr_net, "dis"))
         return groups
 
+    def transferable(self, key: str) -> bool:
+        return not key.startswith("textures.")  # a scene's texture stays with its scene
+
     def ddp_find_unused(self, gen: GenStage) -> bool:
         # with several textures, those of scenes that no rank sampled in a step get no gradient
         return len(gen.textures) > 1
