@@ -66,6 +66,26 @@ def atomic_save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray], comp
                 os.fsync(f.fileno())
 
 
+def fsync_files(paths) -> None:
+    """Flush files already written (and renamed) to disk, then their folders' entries: many files
+    made durable at once, instead of one blocking fsync per file while it is written (a 4 MB view
+    file's fsync took about as long as ray casting the view on the dev machine)."""
+    dirs = set()
+    for p in paths:
+        fd = os.open(p, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        dirs.add(os.path.dirname(os.path.abspath(p)))
+    for d in dirs:
+        fd = os.open(d, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 def atomic_write_image(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write an 8- or 16-bit image (H x W, H x W x 3 RGB or H x W x 4 RGBA) as PNG."""
     from PIL import Image

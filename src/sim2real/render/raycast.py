@@ -270,7 +270,7 @@ def render_camera(caster: RayCaster, camera: Camera) -> GBuffer:
 def _render_to_file(caster: RayCaster, job: tuple[Camera, str, bool]) -> str:
     camera, path, preview = job
     g = caster.render(camera)
-    g.save(path)  # in the worker: only the path goes back through the pool
+    g.save(path, durable=False)  # in the worker: only the path goes back; fsync'd together at the end
     if preview:
         from sim2real.render.reference import save_preview
 
@@ -294,6 +294,7 @@ def render_views(
     ``caster`` (of the same scene) is reused in-process and gives the workers its geometry."""
     from tqdm import tqdm
 
+    from sim2real.fileio import fsync_files
     from sim2real.pool import WorkerPool
     from sim2real.threads import usable_cores
 
@@ -315,4 +316,5 @@ def render_views(
         for path in pool.imap(_render_to_file, jobs):
             done.append(path)
             bar.update()
+    fsync_files(done)  # durable before the caller writes the folder's manifest
     return done
