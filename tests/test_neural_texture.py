@@ -32,10 +32,12 @@ def _texture(boxes, mapping="box", seed=1, N=3):
     return tex
 
 
-def _naive(T, boxes, oid, pts, n, mapping="box"):
+def _naive(T, boxes, oid, pts, n, mapping="box", texel=False):
     """Direct transcription of the supplementary: tri(s), w = (n_s . n_p)^2, floor/ceil bilinear.
-    Returns the output and the set of (o, p, x, y) texels with nonzero total weight."""
+    Returns the output and the set of (o, p, x, y) texels with nonzero total weight. ``texel``:
+    the release's order, tanh of every texel and no tanh after the interpolation."""
     T = T.detach().numpy()
+    T_in = np.tanh(T) if texel else T
     B, H, W = oid.shape
     out = np.zeros((B, T.shape[-1], H, W))
     used = set()
@@ -75,10 +77,10 @@ def _naive(T, boxes, oid, pts, n, mapping="box"):
                         (dx * dy, cx, cy),
                     ]
                     for wb, i, j in terms:
-                        acc += w * wb * T[o, p, i, j]
+                        acc += w * wb * T_in[o, p, i, j]
                         if w * wb != 0:
                             used.add((o, p, i, j))
-                out[b, :, r, col] = np.tanh(acc)
+                out[b, :, r, col] = acc if texel else np.tanh(acc)
     return torch.from_numpy(out), used
 
 
@@ -90,6 +92,31 @@ def test_projection_matches_naive_paper_formula(mapping):
     want, _ = _naive(tex.texture, boxes, oid, pts, n, mapping)
     assert got.shape == (2, 3, 5, 7)
     torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+
+
+def test_tanh_per_texel_matches_the_releases_order():
+    boxes, oid, pts, n = _scene(seed=5)
+    tex = _texture(boxes)
+    texel = NeuralTexture(len(boxes), boxes, cfg=TextureConfig(size=S, features=3, tanh="texel")).double()
+    texel.load_state_dict(tex.state_dict())
+    want, _ = _naive(tex.texture, boxes, oid, pts, n, texel=True)
+    torch.testing.assert_close(texel(oid, pts, n), want, rtol=0, atol=1e-12)
+    assert not torch.allclose(texel(oid, pts, n), tex(oid, pts, n))  # a different function of the texture
+
+
+def test_init_noise_is_band_limited_with_the_given_std():
+    boxes = torch.tensor([[[0.0, 0, 0], [10, 10, 10]]], dtype=torch.float64)
+    cfg = TextureConfig(size=64, features=2, init_noise=0.5, init_noise_sigma=1.5)
+    torch.manual_seed(0)
+    tex = NeuralTexture(1, boxes, [[0.3, 0.6, 0.9]], cfg)
+    flat = NeuralTexture(1, boxes, [[0.3, 0.6, 0.9]], TextureConfig(size=64, features=2))
+    d = (tex.texture - flat.texture).detach().double()
+    assert d.std().item() == pytest.approx(0.5, rel=1e-3) and abs(d.mean().item()) < 0.05
+    # Gaussian-blurred white noise: lag-1 correlation exp(-1 / (4 sigma^2)) = 0.895 at sigma 1.5,
+    # along both texel axes (white noise: 0)
+    for a, b in ((d[..., 1:, :, :], d[..., :-1, :, :]), (d[..., :, 1:, :], d[..., :, :-1, :])):
+        r = torch.corrcoef(torch.stack([a.flatten(), b.flatten()]))[0, 1].item()
+        assert r == pytest.approx(math.exp(-1 / 9), abs=0.03)
 
 
 def test_background_is_zero_and_garbage_there_is_ignored():

@@ -31,6 +31,15 @@ class TextureConfig:
     mapping: str = "box"
     """'box': each plane spans its object's bounding box (paper).
     'cube': one uniform scale, the box's largest side, so texels are square."""
+    tanh: str = "interpolated"
+    """Where the texture's tanh is applied: 'interpolated' (tanh of the interpolated value: O(pixels)
+    per step) or 'texel' (tanh of every texel, then interpolation, as the authors' release)."""
+    init_noise: float = 0.0
+    """Standard deviation of band-limited Gaussian noise added to the flat start (before the tanh):
+    3-D-anchored high-frequency input from step 0 (a lever of the detail study; 0 = the paper's
+    flat start)."""
+    init_noise_sigma: float = 1.5
+    """Band limit of that noise: white noise blurred with a Gaussian of this many texels per plane."""
 
 
 @dataclass

@@ -52,12 +52,17 @@ class OursConfig(MethodConfig):
         import math
 
         from sim2real.losses.consistency import VC_KINDS
-        from sim2real.texture.neural_texture import MAPPINGS
+        from sim2real.texture.neural_texture import MAPPINGS, TANH_MODES
 
         t = self.texture
         need(t.size >= 1, "method.texture.size", ">= 1", t.size)
         need(t.features >= 0, "method.texture.features", ">= 0 (0: no texture)", t.features)
         need(t.mapping in MAPPINGS, "method.texture.mapping", "one of " + ", ".join(MAPPINGS), t.mapping)
+        need(t.tanh in TANH_MODES, "method.texture.tanh", "one of " + ", ".join(TANH_MODES), t.tanh)
+        need(math.isfinite(t.init_noise) and t.init_noise >= 0, "method.texture.init_noise", "finite and >= 0",
+             t.init_noise)
+        need(math.isfinite(t.init_noise_sigma) and t.init_noise_sigma > 0, "method.texture.init_noise_sigma", "> 0",
+             t.init_noise_sigma)
         need(math.isfinite(self.vc) and self.vc >= 0, "method.vc", "a finite weight >= 0", self.vc)
         need(self.vc_start >= 0, "method.vc_start", ">= 0", self.vc_start)
         need(self.vc_kind in VC_KINDS, "method.vc_kind", "one of " + ", ".join(VC_KINDS), self.vc_kind)

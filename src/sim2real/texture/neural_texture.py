@@ -68,6 +68,8 @@ PLANES = ("+x", "-x", "+y", "-y", "+z", "-z")
 """Plane order along dimension 1 of the texture."""
 MAPPINGS = ("box", "cube")
 """``texture.mapping`` options (see the module docstring)."""
+TANH_MODES = ("interpolated", "texel")
+"""``texture.tanh`` options: tanh after the interpolation (ours) or of every texel (the release)."""
 IN_PLANE_AXES = ((1, 2), (0, 2), (0, 1))
 """(u, v) world axes spanning the planes of axis x, y, z."""
 INIT_CLIP = 0.99
@@ -106,6 +108,9 @@ class NeuralTexture(nn.Module):
         self.size = int(cfg.size)
         self.features = int(cfg.features)
         self.mapping = cfg.mapping
+        if cfg.tanh not in TANH_MODES:
+            raise ValueError(f"texture.tanh must be one of {TANH_MODES}, got {cfg.tanh!r}")
+        self.tanh_mode = cfg.tanh
         self.register_buffer("bbox_min", boxes[:, 0].clone())
         self.register_buffer("bbox_max", torch.maximum(boxes[:, 1], boxes[:, 0]).clone())
         # small index tables as non-persistent buffers: they follow .to(device), no per-call copy
@@ -116,6 +121,8 @@ class NeuralTexture(nn.Module):
         self.texture = nn.Parameter(init)
         if colours is not None:
             self.set_colours(colours)
+        if cfg.init_noise > 0:
+            self.add_noise(cfg.init_noise, cfg.init_noise_sigma)
 
     @classmethod
     def from_colours(cls, bboxes, colours, cfg: TextureConfig | None = None) -> "NeuralTexture":
@@ -132,6 +139,26 @@ class NeuralTexture(nn.Module):
         col = col.repeat(1, reps)[:, : self.features]
         pre = torch.atanh((2.0 * col - 1.0).clamp(-INIT_CLIP, INIT_CLIP))
         self.texture.copy_(pre.to(self.texture)[:, None, None, None, :].expand_as(self.texture))
+
+    @torch.no_grad()
+    def add_noise(self, std: float, sigma: float, generator: torch.Generator | None = None) -> None:
+        """Add band-limited noise to every plane of every feature: white noise blurred with a
+        Gaussian of ``sigma`` texels (separable, reflect padding), rescaled to standard deviation
+        ``std``. Neighbouring texels then correlate by exp(-1 / (4 sigma^2)) (0.895 at sigma 1.5)."""
+        O, P, S, _, N = self.texture.shape
+        noise = torch.randn((O * P * N, 1, S, S), generator=generator)
+        r = max(1, math.ceil(3 * sigma))
+        x = torch.arange(-r, r + 1, dtype=torch.float32)
+        k = torch.exp(-0.5 * (x / sigma) ** 2)
+        k = k / k.sum()
+        pad = min(r, S - 1)
+        if pad > 0:
+            noise = torch.nn.functional.pad(noise, (pad, pad, pad, pad), mode="reflect")
+            kk = k[r - pad : r + pad + 1]
+            noise = torch.nn.functional.conv2d(noise, kk.view(1, 1, 1, -1))
+            noise = torch.nn.functional.conv2d(noise, kk.view(1, 1, -1, 1))
+        noise = noise * (std / noise.std().clamp_min(1e-12))
+        self.texture.add_(noise.reshape(O, P, N, S, S).permute(0, 1, 3, 4, 2).to(self.texture))
 
     def plane_coords(self, object_id: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
         """Normalised coordinates ``c`` (..., 3): c[..., k] is the position along world axis k in
@@ -193,10 +220,14 @@ class NeuralTexture(nn.Module):
         wb = torch.stack(((1 - du) * (1 - dv), (1 - du) * dv, du * (1 - dv), du * dv), dim=1)
         weights = (wb * w_axis.unsqueeze(1)).reshape(12, -1, 1)
 
-        flat = tex.reshape(-1, N)
+        texel = self.tanh_mode == "texel"
+        flat = (torch.tanh(tex) if texel else tex).reshape(-1, N)  # 'texel': O(texels) per step
         gathered = flat.index_select(0, idx.reshape(-1)).reshape(12, -1, N)
-        feat = torch.tanh((gathered * weights).sum(dim=0))  # (P, N); exactly 0 on background
+        feat = (gathered * weights).sum(dim=0)  # (P, N); exactly 0 on background
+        if not texel:
+            feat = torch.tanh(feat)
         return feat.reshape(B, H, W, N).permute(0, 3, 1, 2).contiguous()
 
     def extra_repr(self) -> str:
-        return f"objects={self.num_objects}, size={self.size}, features={self.features}, mapping={self.mapping}"
+        return (f"objects={self.num_objects}, size={self.size}, features={self.features}, mapping={self.mapping}, "
+                f"tanh={self.tanh_mode}")
