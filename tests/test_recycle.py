@@ -176,6 +176,9 @@ def test_trains_resumes_and_translates_a_sequence(name, train_inputs, tmp_path, 
     run = tmp_path / "run"
     trainer, seen = train_logged(cfg, scenes, real, run)
     assert sorted(seen) == [0, 1]
+    # the public code's Adam: lr 2e-4, no weight decay (ours' groups keep optim.weight_decay = 1e-4)
+    groups = [g for o in trainer.optimizers.values() for g in o.param_groups]
+    assert {(g["lr"], g["weight_decay"]) for g in groups} == {(2e-4, 0.0)}
     assert ("gen/ssim_ab" in seen[1]) == (name == "ssim_recycle") and "gen/recycle_a" in seen[1]
     assert seen[1]["gen/total"] == pytest.approx(weighted_total(trainer, seen[1], 1), rel=1e-5)
     assert (run / "samples").is_dir()

@@ -94,8 +94,11 @@ def loader_workers(workers: int) -> int:
     return max(1, min(AUTO_WORKERS_MAX, per_rank - 1))
 
 
-def _adam(params, lr: float, cfg: TrainConfig, device: torch.device) -> torch.optim.Adam:
-    kw = dict(lr=lr, betas=(cfg.optim.beta1, cfg.optim.beta2), weight_decay=cfg.optim.weight_decay)
+def _adam(group, cfg: TrainConfig) -> torch.optim.Adam:
+    """Adam for one of the method's groups: its learning rate, and its weight decay when it sets
+    one (else ``optim.weight_decay``)."""
+    wd = cfg.optim.weight_decay if group.weight_decay is None else group.weight_decay
+    params, kw = group.params, dict(lr=group.lr, betas=(cfg.optim.beta1, cfg.optim.beta2), weight_decay=wd)
     try:  # fused Adam: 5x faster on the 23.6 M texture (CPU and CUDA)
         return torch.optim.Adam(params, fused=True, **kw)
     except (RuntimeError, TypeError, ValueError):
@@ -228,7 +231,7 @@ class Trainer:
                 if not isinstance(m, torch.nn.ModuleDict):
                     m.to(memory_format=torch.channels_last)
         self.groups = self.method.optim_groups(self.gen, self.dis)
-        self.optimizers = {g.name: _adam(g.params, g.lr, cfg, self.device) for g in self.groups}
+        self.optimizers = {g.name: _adam(g, cfg) for g in self.groups}
         self.schedulers = {
             g.name: torch.optim.lr_scheduler.StepLR(self.optimizers[g.name], cfg.optim.lr_halve_every, gamma=0.5)
             for g in self.groups

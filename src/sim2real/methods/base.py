@@ -60,6 +60,8 @@ class OptimGroup:
     lr: float
     side: str
     """'gen' (stepped after the generator losses) or 'dis'."""
+    weight_decay: float | None = None
+    """Adam's weight decay for this group; None: ``optim.weight_decay`` (the authors' release: 1e-4)."""
 
 
 def scene_key(name: str, taken: set[str]) -> str:

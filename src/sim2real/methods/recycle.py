@@ -162,8 +162,9 @@ class Recycle(Method):
         return self._stage(), DisStage(MsImageDis(3, d), MsImageDis(3, d))
 
     def optim_groups(self, gen: RecycleGen, dis: DisStage) -> list[OptimGroup]:
-        return [OptimGroup("net", list(gen.parameters()), self.mc.lr, "gen"),
-                OptimGroup("dis", list(dis.parameters()), self.mc.lr, "dis")]
+        # the public ReCycle-GAN code: Adam without weight decay
+        return [OptimGroup("net", list(gen.parameters()), self.mc.lr, "gen", weight_decay=0.0),
+                OptimGroup("dis", list(dis.parameters()), self.mc.lr, "dis", weight_decay=0.0)]
 
     # --- schedules -------------------------------------------------------------------------------
 

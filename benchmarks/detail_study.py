@@ -1,0 +1,117 @@
+"""The detail study (issue "Detail that stays"): one lever setting, trained from scratch for a fixed
+wall-clock budget on the demo's data, scored on the demo's test path; prints one JSON row and
+appends it to ``--rows`` (JSON lines). ``--table ROWS`` prints the markdown table of a rows file.
+
+Every run uses the same embedded data (``make_embedded_data``: seed 0, 2 scenes, the stand-in real
+domain at the training size), the same test trajectory (``make_trajectory`` of the first scene,
+seed 0, the evaluation's default motion budget: no training view lies on it) and the same seeds;
+only the lever's ``--set`` assignments differ from the demo's CPU configuration. Give every run
+the same minutes on an otherwise idle machine (the runs are equal in wall-clock, not in steps).
+
+Scores (from ``sim2real evaluate``, with the ceiling and the floor on the same path):
+ORB-1/5/10 correct matches per pair as a fraction of the ceiling's, and their accuracy; the detail
+statistic (mean grey gradient as a share of the real images'); Dice and a_ref's Dice.
+
+Usage:
+  python benchmarks/detail_study.py --data D --out RUNS --lever init_noise --minutes 30 \\
+      --set method.texture.init_noise=1.0 --rows docs/detail_study.jsonl
+  python benchmarks/detail_study.py --table docs/detail_study.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+
+def data(root: Path, height: int, width: int, frames: int) -> tuple[list[Path], Path, Path]:
+    """The shared inputs, made once under ``root``: scenes, real folder, test trajectory."""
+    from sim2real.data.embedded import make_embedded_data
+    from sim2real.render.raycast import RayCaster
+    from sim2real.scene.scene import Scene
+    from sim2real.scene.trajectory import make_trajectory
+
+    done = root / "done.json"
+    if not done.is_file():
+        sim, real = make_embedded_data(root, 0, 2, 200, height, width, say=lambda m: print(m, file=sys.stderr))
+        make_trajectory(RayCaster(Scene.load(sim[0])), frames, height, width, 75.0, seed=0).save(root / "trajectory.txt")
+        done.write_text(json.dumps({"scenes": [str(s) for s in sim], "real": str(real)}))
+    info = json.loads(done.read_text())
+    return [Path(s) for s in info["scenes"]], Path(info["real"]), root / "trajectory.txt"
+
+
+def run(args) -> dict:
+    from sim2real.cli.demo import demo_config
+    from sim2real.config import override
+    from sim2real.engine.trainer import Trainer
+    from sim2real.inference.evaluate import EvalSettings, evaluate
+
+    cfg = override(demo_config(None, False, "cpu", args.method), args.set)
+    scenes, real, traj = data(Path(args.data), cfg.data.height, cfg.data.width, args.frames)
+    out = Path(args.out) / args.name
+    trainer = Trainer(cfg, [str(s) for s in scenes], str(real / "images"), out / "run", progress=False)
+    t0 = time.perf_counter()
+    try:
+        trainer.train(time_limit_s=60.0 * args.minutes)
+    finally:
+        trainer.close()
+    minutes = (time.perf_counter() - t0) / 60
+    m = evaluate(out / "run", [str(scenes[0])], real, out / "evaluation", trajectories=[str(traj)],
+                 settings=EvalSettings(views=32, frames=args.frames, seed=0), device="cpu", progress=False)
+    rows = m["rows"]
+    row = {"lever": args.lever, "setting": " ".join(args.set) or "(demo defaults)", "method": args.method,
+           "minutes": round(minutes, 1), "steps": trainer.step, "command": " ".join(map(shlex.quote, sys.argv))}
+    for k in (1, 5, 10):
+        c, c_ceiling = rows["model"][f"orb_{k}_correct"], rows["ceiling"][f"orb_{k}_correct"]
+        row[f"orb_{k}_of_ceiling"] = None if c is None or not c_ceiling else round(c / c_ceiling, 3)
+        row[f"orb_{k}_accuracy"] = rows["model"][f"orb_{k}_accuracy"]
+        row[f"orb_{k}_ceiling_correct"] = c_ceiling
+    row.update(detail=rows["model"].get("detail"), detail_ceiling=rows["ceiling"].get("detail"),
+               dice=m["dice"], dice_a_ref=m["dice_a_ref"])
+    return row
+
+
+def table(rows_file: Path) -> str:
+    def f(v, pct=False):
+        return "–" if v is None else (f"{100 * v:.0f} %" if pct else f"{v:.3g}")
+
+    head = "| lever | setting | min | steps | ORB-1 of ceiling (acc.) | ORB-5 | ORB-10 | detail | Dice (a_ref) |"
+    lines = [head, "|" + "---|" * 9]
+    for line in rows_file.read_text().splitlines():
+        r = json.loads(line)
+        orb = [f"{f(r[f'orb_{k}_of_ceiling'], True)} ({f(r[f'orb_{k}_accuracy'], True)})" for k in (1, 5, 10)]
+        lines.append(f"| {r['lever']} | `{r['setting']}` | {r['minutes']} | {r['steps']} | " + " | ".join(orb)
+                     + f" | {f(r['detail'])} | {f(r['dice'])} ({f(r['dice_a_ref'])}) |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--table", type=Path, help="print the markdown table of a rows file and stop")
+    ap.add_argument("--data", default="study_data", help="shared inputs (made once)")
+    ap.add_argument("--out", default="study_runs")
+    ap.add_argument("--lever", default="baseline")
+    ap.add_argument("--name", help="run folder name (default: the lever)")
+    ap.add_argument("--method", default="ours")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--minutes", type=float, default=30.0)
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--rows", type=Path, help="append the row to this JSON-lines file")
+    args = ap.parse_args()
+    if args.table:
+        print(table(args.table))
+        return
+    args.name = args.name or args.lever
+    row = run(args)
+    print(json.dumps(row, indent=2))
+    if args.rows:
+        with open(args.rows, "a") as f:
+            f.write(json.dumps(row) + "\n")
+
+
+if __name__ == "__main__":
+    main()
