@@ -70,16 +70,9 @@ def fsync_files(paths) -> None:
     """Flush files already written (and renamed) to disk, then their folders' entries: many files
     made durable at once, instead of one blocking fsync per file while it is written (a 4 MB view
     file's fsync took about as long as ray casting the view on the dev machine)."""
-    dirs = set()
-    for p in paths:
+    paths = [os.path.abspath(p) for p in paths]
+    for p in [*paths, *sorted({os.path.dirname(p) for p in paths})]:
         fd = os.open(p, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        dirs.add(os.path.dirname(os.path.abspath(p)))
-    for d in dirs:
-        fd = os.open(d, os.O_RDONLY)
         try:
             os.fsync(fd)
         finally:
