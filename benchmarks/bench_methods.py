@@ -62,7 +62,6 @@ def _sync(device) -> None:
 
 
 def measure(preset: str, method: str, iters: int, device: str, base: Path, frames: int) -> dict:
-    import torch
     from torch.utils.data import default_collate
 
     from sim2real.config import override, preset as get_preset
