@@ -47,6 +47,15 @@ def dis_terms(dis, out: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
             "dis_b": lsgan_dis_loss([s[:B] for s in db], [s[B:] for s in db])}
 
 
+def adv_terms(dis, out: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Unweighted LSGAN generator terms: D_A on ``a_hat``, D_B on ``b_hat`` (gradient flows to the
+    generators; the trainer freezes the discriminators meanwhile)."""
+    from sim2real.losses import lsgan_gen_loss
+
+    return {"adv_a": lsgan_gen_loss([s.float() for s in dis.dis_a(out["a_hat"])]),
+            "adv_b": lsgan_gen_loss([s.float() for s in dis.dis_b(out["b_hat"])])}
+
+
 def translator_weights(cfg) -> dict[str, float]:
     """Weights of the shared translator terms (``cfg.loss``), by term name."""
     L = cfg.loss

@@ -21,9 +21,9 @@ import torch
 from torch import nn
 
 from sim2real.config import MethodConfig, TextureConfig, register_method_config
-from sim2real.losses import l1, lsgan_gen_loss, ms_ssim_loss, view_consistency, warp_backward
+from sim2real.losses import l1, ms_ssim_loss, view_consistency, warp_backward
 from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, rgb
-from sim2real.methods.common import DisStage, dis_terms, pad_apply, translator_terms, translator_weights
+from sim2real.methods.common import DisStage, adv_terms, dis_terms, pad_apply, translator_terms, translator_weights
 
 
 @register_method_config
@@ -181,8 +181,7 @@ class Ours(Method):
         f = {k: v.float() for k, v in out.items() if v.is_floating_point()}
         L, n = self.cfg.loss, self.features
         losses = {
-            "adv_a": lsgan_gen_loss([s.float() for s in dis.dis_a(out["a_hat"])]),
-            "adv_b": lsgan_gen_loss([s.float() for s in dis.dis_b(out["b_hat"])]),
+            **adv_terms(dis, out),
             "rec_a": l1(f["a_rec"], f["x_a"]),
             "rec_b": l1(f["b_rec"], f["x_b"]),
             "cyc_a": l1(f["a_cyc"], f["x_a"]),

@@ -58,9 +58,9 @@ import numpy as np
 import torch
 
 from sim2real.config import MethodConfig, register_method_config
-from sim2real.losses import l1, lsgan_gen_loss, ms_ssim_loss
+from sim2real.losses import l1, ms_ssim_loss
 from sim2real.methods.base import Batch, Method, OptimGroup, Out, SequenceTranslator, Stage, rgb
-from sim2real.methods.common import DisStage, dis_terms, pad_apply, translator_weights
+from sim2real.methods.common import DisStage, adv_terms, dis_terms, pad_apply, translator_weights
 
 
 @register_method_config
@@ -227,8 +227,7 @@ class SsimMunit(Method):
         f = {k: v.float() for k, v in out.items() if v.is_floating_point()}
         L = self.cfg.loss
         losses = {
-            "adv_a": lsgan_gen_loss([s.float() for s in dis.dis_a(out["a_hat"])]),
-            "adv_b": lsgan_gen_loss([s.float() for s in dis.dis_b(out["b_hat"])]),
+            **adv_terms(dis, out),
             "rec_a": l1(f["a_rec"], f["x_a"]),
             "rec_b": l1(f["b_rec"], f["x_b"]),
             "style_a": l1(f["s_a_rec"], f["s_a"]),
