@@ -7,6 +7,8 @@ domain at the training size), the same test trajectory (``make_trajectory`` of t
 seed 0, the evaluation's default motion budget: no training view lies on it) and the same seeds;
 only the lever's ``--set`` assignments differ from the demo's CPU configuration. Give every run
 the same minutes on an otherwise idle machine (the runs are equal in wall-clock, not in steps).
+Two rows may run at once, each pinned to its own core (``taskset -c 0`` / ``-c 1``); the row
+records the cores and threads it had, so rows are compared only with rows of the same share.
 
 Scores (from ``sim2real evaluate``, with the ceiling and the floor on the same path):
 ORB-1/5/10 correct matches per pair as a fraction of the ceiling's, and their accuracy; the detail
@@ -45,14 +47,18 @@ def data(root: Path, height: int, width: int, frames: int) -> tuple[list[Path], 
 
 
 def run(args) -> dict:
+    import torch
+
     from sim2real.cli.demo import demo_config
     from sim2real.config import override
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.evaluate import EvalSettings, evaluate
+    from sim2real.threads import usable_cores
 
     cfg = override(demo_config(None, False, "cpu", args.method), args.set)
     scenes, real, traj = data(Path(args.data), cfg.data.height, cfg.data.width, args.frames)
     out = Path(args.out) / args.name
+    torch.set_num_threads(usable_cores())
     trainer = Trainer(cfg, [str(s) for s in scenes], str(real / "images"), out / "run", progress=False)
     t0 = time.perf_counter()
     try:
@@ -64,7 +70,8 @@ def run(args) -> dict:
                  settings=EvalSettings(views=32, frames=args.frames, seed=0), device="cpu", progress=False)
     rows = m["rows"]
     row = {"lever": args.lever, "setting": " ".join(args.set) or "(demo defaults)", "method": args.method,
-           "minutes": round(minutes, 1), "steps": trainer.step, "command": " ".join(map(shlex.quote, sys.argv))}
+           "minutes": round(minutes, 1), "steps": trainer.step, "cores": usable_cores(),
+           "threads": torch.get_num_threads(), "command": " ".join(map(shlex.quote, sys.argv))}
     for k in (1, 5, 10):
         c, c_ceiling = rows["model"][f"orb_{k}_correct"], rows["ceiling"][f"orb_{k}_correct"]
         row[f"orb_{k}_of_ceiling"] = None if c is None or not c_ceiling else round(c / c_ceiling, 3)
@@ -79,12 +86,12 @@ def table(rows_file: Path) -> str:
     def f(v, pct=False):
         return "–" if v is None else (f"{100 * v:.0f} %" if pct else f"{v:.3g}")
 
-    head = "| lever | setting | min | steps | ORB-1 of ceiling (acc.) | ORB-5 | ORB-10 | detail | Dice (a_ref) |"
+    head = "| lever | setting | min (cores) | steps | ORB-1 of ceiling (acc.) | ORB-5 | ORB-10 | detail | Dice (a_ref) |"
     lines = [head, "|" + "---|" * 9]
     for line in rows_file.read_text().splitlines():
         r = json.loads(line)
         orb = [f"{f(r[f'orb_{k}_of_ceiling'], True)} ({f(r[f'orb_{k}_accuracy'], True)})" for k in (1, 5, 10)]
-        lines.append(f"| {r['lever']} | `{r['setting']}` | {r['minutes']} | {r['steps']} | " + " | ".join(orb)
+        lines.append(f"| {r['lever']} | `{r['setting']}` | {r['minutes']} ({r.get('cores', '?')}) | {r['steps']} | " + " | ".join(orb)
                      + f" | {f(r['detail'])} | {f(r['dice'])} ({f(r['dice_a_ref'])}) |")
     return "\n".join(lines)
 
