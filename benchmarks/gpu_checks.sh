@@ -88,7 +88,7 @@ checks|smoke)
 demo)
     D=$W/demo_out
     stage demo $((90 + ${DEMO_MINUTES%.*} * 60 + 240)) "$PY" -m sim2real.cli.main demo --out "$D" \
-        --minutes "$DEMO_MINUTES" --device "$DEV" "${DEMO[@]}"
+        --train --minutes "$DEMO_MINUTES" --device "$DEV" "${DEMO[@]}"
     if [ -d "$D/run/checkpoints" ]; then
         stage learn_stats 120 "$PY" benchmarks/learn_stats.py "$D/run" --texture-png "$W/textures"
         # keep the report, metrics, grids and video; drop what is large and can be made again

@@ -19,7 +19,7 @@ FRAMES = 6
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo") / "out"
-    code = main(["demo", "--out", str(out), "--minutes", "0.05", "--preset", "tiny", "--scenes", "1",
+    code = main(["demo", "--out", str(out), "--train", "--minutes", "0.05", "--preset", "tiny", "--scenes", "1",
                  "--real-images", "8", "--frames", str(FRAMES), "--eval-views", "4", "--seg-iterations", "5"])
     return code, out
 
@@ -65,7 +65,7 @@ def test_demo_writes_video_ground_truth_and_report(demo):
 
 def test_demo_refuses_a_used_output_folder(tmp_path, capsys):
     (tmp_path / "old.txt").write_text("keep me")
-    code = main(["demo", "--out", str(tmp_path), "--minutes", "0.05", "--preset", "tiny"])
+    code = main(["demo", "--out", str(tmp_path), "--train", "--minutes", "0.05", "--preset", "tiny"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.txt"]
@@ -82,7 +82,7 @@ def test_demo_refuses_settings_that_would_fail_after_training(tmp_path, capsys, 
     import torch
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    code = main(["demo", "--out", str(tmp_path / "out"), "--minutes", "0.05", "--preset", "tiny", *extra])
+    code = main(["demo", "--out", str(tmp_path / "out"), "--train", "--minutes", "0.05", "--preset", "tiny", *extra])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and words in err, err
     assert not (tmp_path / "out").exists()

@@ -2,7 +2,9 @@
 
 1. procedural simulated scenes (seeds S, S+1, ...);
 2. stand-in real images with labels, from scenes of other seeds (the domains are unpaired);
-3. training within a time budget (``--minutes``); on a GPU it picks the paper preset;
+3. the trained model shipped in the package (``sim2real/shipped``: its scenes' geometry hash is
+   checked), or with ``--train`` a training from scratch within a time budget (``--minutes``; on a
+   GPU the paper preset);
 4. translation of a 100-frame test trajectory to ``video.mp4`` with its ground truth;
 5. evaluation (FID/KID when Inception weights are given, proxy distance, Dice, OF, ORB-k,
    revisit) and the report.
@@ -18,10 +20,13 @@ from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="run the pipeline end to end on procedural data it makes itself")
     p.add_argument("--out", required=True, help="new output directory")
-    p.add_argument("--minutes", type=positive_float, default=10.0, help="training time budget")
+    p.add_argument("--train", action="store_true",
+                   help="train from scratch instead of using the shipped model")
+    p.add_argument("--minutes", type=positive_float, default=None, help="with --train: training time budget (default 10)")
     p.add_argument("--preset", choices=("paper", "small", "tiny"), default=None,
-                   help="default: paper on a GPU, a lighter 'small' (16 filters) on a CPU")
-    p.add_argument("--scenes", type=positive_int, default=2, help="procedural simulated scenes")
+                   help="with --train; default: paper on a GPU, a lighter 'small' (16 filters) on a CPU")
+    p.add_argument("--scenes", type=positive_int, default=None,
+                   help="procedural simulated scenes (default 2; the shipped model's scenes without --train)")
     p.add_argument("--real-images", type=positive_int, default=200, help="stand-in real images")
     p.add_argument("--frames", type=positive_int, default=100, help="frames of the test trajectory")
     p.add_argument("--eval-views", type=positive_int, default=32, help="random views for the realism metrics")
@@ -30,7 +35,8 @@ def register(sub) -> None:
     add_motion_args(p)
     p.add_argument("--fid-weights", default=None, help="pt_inception-2015-12-05 weights for FID/KID (optional)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    p.add_argument("--seed", type=non_negative_int, default=0)
+    p.add_argument("--seed", type=non_negative_int, default=None,
+                   help="seed of the scenes and the real domain (default 0; the shipped model's without --train)")
     p.set_defaults(func=run)
 
 
@@ -53,10 +59,32 @@ def demo_config(preset_name: str | None, cuda: bool, device: str, method: str = 
     return override(cfg, sets)
 
 
+def _shipped_settings(args) -> dict:
+    """The shipped model's record, with ``args`` checked against it: its scenes are made from its
+    seeds, and training flags need ``--train``."""
+    from sim2real import shipped
+    from sim2real.errors import UserError
+
+    for flag, value in (("--minutes", args.minutes), ("--preset", args.preset)):
+        if value is not None:
+            raise UserError(f"{flag} sets the training; add --train to train from scratch instead of using the "
+                            "shipped model")
+    record = shipped.load_record()
+    for flag, value, key in (("--seed", args.seed, "scene_seed"), ("--scenes", args.scenes, "scenes")):
+        if value is not None and value != record[key]:
+            raise UserError(f"the shipped model was trained on the scenes of {key.replace('_', ' ')} {record[key]}, "
+                            f"not {flag} {value}; add --train to train on other scenes")
+    args.seed, args.scenes = record["scene_seed"], record["scenes"]
+    return record
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from sim2real.config import validate
+    from sim2real import shipped
+    from sim2real.comparison.figures import side_by_side
+    from sim2real.config import TrainConfig, from_dict, validate
+    from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import Trainer, resolve_device
     from sim2real.fileio import atomic_write_json, prepare_output_dir
     from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate
@@ -68,7 +96,14 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.scene.trajectory import make_trajectory
 
     cuda = args.device == "cuda" or (args.device == "auto" and torch.cuda.is_available())
-    cfg = demo_config(args.preset, cuda, args.device)
+    if args.train:
+        args.minutes = 10.0 if args.minutes is None else args.minutes
+        args.seed = 0 if args.seed is None else args.seed
+        args.scenes = 2 if args.scenes is None else args.scenes
+        cfg = demo_config(args.preset, cuda, args.device)
+    else:
+        record = _shipped_settings(args)
+        cfg = from_dict(TrainConfig, load_checkpoint(shipped.model_path())["config"])
     h, w = cfg.data.height, cfg.data.width
     settings = EvalSettings(views=args.eval_views, frames=args.frames, seg_iterations=args.seg_iterations,
                             seed=args.seed, trajectory=motion_kwargs(args))
@@ -84,13 +119,19 @@ def run(args: argparse.Namespace) -> int:
     sim_dirs, _ = make_embedded_data(out, args.seed, args.scenes, args.real_images, h, w,
                                      say=lambda m: print(f"demo: {next(steps_said)} {m}", flush=True))
 
-    print(f"demo: 3/5 training for {args.minutes:g} min ({'GPU' if cuda else 'CPU'})", flush=True)
-    trainer = Trainer(cfg, scenes=[str(d) for d in sim_dirs], real=str(out / "real" / "images"), out=out / "run")
-    try:
-        trainer.train(time_limit_s=60.0 * args.minutes)
-    finally:
-        trainer.close()
-    steps = trainer.step
+    if args.train:
+        print(f"demo: 3/5 training for {args.minutes:g} min ({'GPU' if cuda else 'CPU'})", flush=True)
+        trainer = Trainer(cfg, scenes=[str(d) for d in sim_dirs], real=str(out / "real" / "images"), out=out / "run")
+        try:
+            trainer.train(time_limit_s=60.0 * args.minutes)
+        finally:
+            trainer.close()
+        steps = trainer.step
+    else:
+        shipped.check_scenes(record, sim_dirs)
+        shipped.install_run(out / "run")
+        steps = record["steps"]
+        print(f"demo: 3/5 the shipped model ({shipped.record_text(record)}); its scenes' geometry matches", flush=True)
 
     print("demo: 4/5 translating the test trajectory", flush=True)
     traj_path = out / "trajectory.txt"
@@ -102,19 +143,24 @@ def run(args: argparse.Namespace) -> int:
     print("demo: 5/5 evaluation", flush=True)
     metrics = evaluate(out / "run", [str(sim_dirs[0])], out / "real", out / "evaluation", trajectories=[traj_path],
                        settings=settings, fid_weights=args.fid_weights, device=args.device)
+    side_by_side(out / "side_by_side.png", {"model": out / "run"}, sim_dirs[0], traj_path, out / "real",
+                 args.seed, args.device)
     atomic_write_json(out / "demo.json", {
-        "preset": args.preset or ("paper" if cuda else "small-16"),
+        "model": "trained here" if args.train else "shipped",
+        "preset": (args.preset or ("paper" if cuda else "small-16")) if args.train else "small-16 (shipped)",
         "device": "cuda" if cuda else "cpu",
-        "training_minutes": args.minutes,
+        "training_minutes": args.minutes if args.train else (record.get("trained") or {}).get("minutes"),
         "training_steps": steps,
         "wall_seconds": time.perf_counter() - t0,
         "video": "video/video.mp4",
         "ground_truth": "video/ground_truth",
         "metrics": "evaluation/metrics.json",
         "report": "evaluation/report.html",
+        "figure": "side_by_side.png",
     })
     shown = {"Dice": metrics.get("dice"), "OF error (px)": metrics.get("of_error"), "FID": metrics.get("fid")}
-    print(f"demo written to {out}: video/video.mp4, video/ground_truth/, evaluation/report.html "
+    print(f"demo written to {out}: video/video.mp4, video/ground_truth/, evaluation/report.html, "
+          f"side_by_side.png "
           f"({steps} training steps; " + ", ".join(f"{k} {'n/a' if v is None else f'{v:.3g}'}" for k, v in shown.items())
           + ")")
     return 0

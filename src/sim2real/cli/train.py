@@ -46,7 +46,10 @@ def register(sub) -> None:
     p.add_argument("--set", dest="overrides", action="append", nargs="+", default=[], metavar="KEY=VALUE",
                    help="override any config field, e.g. --set method.vc=10 data.workers=4")
     p.add_argument("--init-from", metavar="RUN", help="start from a trained run's (or checkpoint's) networks, "
-                                                      "with fresh neural textures for these scenes")
+                                                      "with fresh neural textures for these scenes; 'shipped': "
+                                                      "the demo model inside the package (CPU preset 'small', "
+                                                      "16 filters: --preset small --set generator.filters=16 "
+                                                      "discriminator.filters=16)")
     p.add_argument("--resume", action="store_true",
                    help="continue RUN from RUN/checkpoints/last.pt (append it to the run's command, or give --out alone)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -145,6 +148,11 @@ def run(args: argparse.Namespace) -> int:
         cfg = build_config(args)
     if args.init_from and args.resume:
         raise UserError("--init-from starts a new run; it cannot be combined with --resume")
+    if args.init_from == "shipped" and not Path("shipped").exists():
+        from sim2real import shipped
+
+        shipped.load_record()  # one clear line when this installation has none
+        args.init_from = shipped.model_path()
     trainer = Trainer(cfg, scenes=args.scenes, real=args.real, out=args.out, resume=path,
                       progress=not args.no_progress, resume_state=state, init_from=args.init_from)
     try:

@@ -72,9 +72,10 @@ def _label(text: str, h: int, w: int) -> np.ndarray:
     return np.asarray(im)
 
 
-def side_by_side(out: Path, configs: dict, scene_dir: Path, trajectory: Path, real_dir: Path, s) -> dict:
-    """``side_by_side.png``: rows a_ref, ceiling, then one per method; columns views 0, T/2, T-1 of
-    the test trajectory and view 0 revisited at the end of 1..T, T..1. Returns its description."""
+def side_by_side(png: Path, runs: dict[str, Path], scene_dir: Path, trajectory: Path, real_dir: Path, seed: int = 0,
+                 device: str = "auto") -> dict:
+    """``png``: rows a_ref, ceiling, then one per run (name: run folder); columns views 0, T/2, T-1
+    of the test trajectory and view 0 revisited at the end of 1..T, T..1. Returns its description."""
     from sim2real.grid import tile
     from sim2real.inference.anchors import Anchors, stand_in_options
     from sim2real.inference.frames import iter_gbuffers
@@ -89,19 +90,19 @@ def side_by_side(out: Path, configs: dict, scene_dir: Path, trajectory: Path, re
     gbuffers = list(iter_gbuffers(scene_dir, cams, None, 8))
     scene = Scene.load(scene_dir)
     options, _ = stand_in_options(real_dir)
-    anchors = Anchors(scene, seed=s.seed, options=options)
+    anchors = Anchors(scene, seed=seed, options=options)
     rows = {"a_ref": [to_uint8(reference_rendering(gbuffers[v])) for v in views + [0]],
             "ceiling": [anchors.ceiling(gbuffers[v], v) for v in views + [0]]}
-    for name in configs:
-        model = load_run(out / "runs" / name, device=s.device)
+    for name, run in runs.items():
+        model = load_run(run, device=device)
         seq = model.sequence(scene.name)
         forward = seq.translate(gbuffers)
         revisit = forward[0] if model.time_independent else seq.translate(gbuffers[::-1])[-1]
         rows[name] = [forward[v] for v in views] + [revisit]
     h, w = rows["a_ref"][0].shape[:2]
     grid = tile([[_label(name, h, w), *imgs] for name, imgs in rows.items()])
-    atomic_write_image(out / "side_by_side.png", grid)
-    return {"file": "side_by_side.png", "views": views,
+    atomic_write_image(png, grid)
+    return {"file": png.name, "views": views,
             "caption": f"Columns: views {views[0]}, {views[1]}, {views[2]} of the {T}-frame test trajectory, then view 0 "
                        f"as rendered after the camera went to view {T - 1} and back (revisit). Rows: "
                        + ", ".join(rows)}

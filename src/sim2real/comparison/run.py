@@ -335,7 +335,8 @@ def run_benchmark(out, s: BenchmarkSettings, scenes=None, real=None, trajectorie
     table = build_table(metrics, trained, configs)
     write_table(table, out)
     _say("the side-by-side figure")
-    figure = side_by_side(out, configs, eval_scenes[0], trajectories[0], real_dir, s)
+    figure = side_by_side(out / "side_by_side.png", {n: out / "runs" / n for n in configs}, eval_scenes[0],
+                          trajectories[0], real_dir, s.seed, s.device)
     write_report(table, out, figure)
     _say(f"written: {out / 'table.md'}, {out / 'report.html'}")
     return table

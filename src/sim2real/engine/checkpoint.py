@@ -117,6 +117,10 @@ def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise UserError(f"{path} is not a sim2real training checkpoint")
     state["stamp"] = [st.st_ino, st.st_mtime_ns, st.st_size]
+    for part in ("gen", "dis"):  # the shipped model stores its large tensors in fp16 (sim2real/shipped)
+        if isinstance(state.get(part), dict):
+            state[part] = {k: v.float() if torch.is_tensor(v) and v.dtype == torch.float16 else v
+                           for k, v in state[part].items()}
     return state
 
 

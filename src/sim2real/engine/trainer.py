@@ -146,6 +146,9 @@ class Trainer:
         self.method = get_method(cfg)
         state = resume_state if resume_state is not None else (ckpt.load_checkpoint(resume) if resume is not None else None)
         if state is not None:
+            if "optimizers" not in state:
+                raise UserError(f"{resume} is an inference checkpoint (the shipped model: no optimiser state); "
+                                "start a new run from it with --init-from")
             trained = _state_method(state)
             if trained != self.method.name:
                 raise UserError(f"checkpoint {resume} was trained with method '{trained}', not '{self.method.name}'")

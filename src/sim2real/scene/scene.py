@@ -130,6 +130,19 @@ class Scene:
             "metadata": self.metadata,
         }
 
+    def geometry_hash(self) -> str:
+        """SHA-256 over every object's name, class, faces and vertices rounded to 0.01 mm: equal
+        for the same geometry on any machine (the rounding absorbs last-bit differences of the
+        floating point), different when any vertex moves by more than that."""
+        import hashlib
+
+        h = hashlib.sha256()
+        for o in self.objects:
+            h.update(f"{o.name}\0{o.cls}\0{len(o.mesh.vertices)}\0{len(o.mesh.faces)}\0".encode())
+            h.update(np.ascontiguousarray(np.round(np.asarray(o.mesh.vertices) * 100.0).astype(np.int64)).tobytes())
+            h.update(np.ascontiguousarray(np.asarray(o.mesh.faces, dtype=np.int64)).tobytes())
+        return h.hexdigest()
+
     def save(self, directory: str | os.PathLike) -> Path:
         """Write the scene atomically: into a temporary sibling folder, then rename."""
         directory = Path(directory)

@@ -1,0 +1,158 @@
+"""The trained demo model shipped inside the package (``sim2real demo`` without ``--train``).
+
+This folder holds, beside this module:
+
+* ``demo_model.pt``: an inference checkpoint (``sim2real-train/1`` without optimiser, scheduler or
+  random states) of the CPU preset trained on the demo's embedded data. Tensors of at least
+  :data:`HALF_MIN` elements are stored in fp16 and read back as fp32 (``load_checkpoint``); small
+  ones (biases, norms, texture bounding boxes) stay fp32.
+* ``demo_model.json``: the record: the scene seeds and count, the stand-in real domain's seed, a
+  hash of every scene's geometry (:meth:`sim2real.scene.scene.Scene.geometry_hash`), how it was
+  trained, what it scored, and reference values of two translated frames of the demo's test path.
+* ``demo_model_check.txt``: those two frames' cameras (a trajectory file).
+
+:func:`pack` makes the three files from a finished run; ``benchmarks/pack_demo_model.py`` is its
+command.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from sim2real.errors import UserError
+
+HERE = Path(__file__).resolve().parent
+MODEL = "demo_model.pt"
+RECORD = "demo_model.json"
+CHECK_TRAJECTORY = "demo_model_check.txt"
+FORMAT = "sim2real-shipped/1"
+HALF_MIN = 1024
+"""Tensors with at least this many elements are stored in fp16."""
+THUMB = (16, 32)
+"""Reference values of a translated frame: its mean RGB over 16 x 32 blocks (area average)."""
+
+
+def model_path(root: Path = HERE) -> Path:
+    return root / MODEL
+
+
+def load_record(root: Path = HERE) -> dict:
+    """The shipped model's record; one clear error when this installation has none."""
+    from sim2real.fileio import read_json
+
+    if not (root / MODEL).is_file() or not (root / RECORD).is_file():
+        raise UserError(f"no shipped demo model in {root}; run 'sim2real demo --train' to train one")
+    record = read_json(root / RECORD, "shipped model record")
+    if record.get("format") != FORMAT:
+        raise UserError(f"{root / RECORD} is not a {FORMAT} record")
+    return record
+
+
+def scene_hashes(scene_dirs) -> list[str]:
+    from sim2real.scene.scene import Scene
+
+    return [Scene.load(d).geometry_hash() for d in scene_dirs]
+
+
+def check_scenes(record: dict, scene_dirs) -> None:
+    """Refuse scenes whose geometry is not the geometry the shipped textures were trained on."""
+    want = record["scene_hashes"]
+    got = scene_hashes(scene_dirs)
+    if len(got) != len(want):
+        raise UserError(f"the shipped model was trained on {len(want)} scenes, not {len(got)}")
+    for d, g, w in zip(scene_dirs, got, want):
+        if g != w:
+            raise UserError(f"scene {d} does not match the shipped model's scene (geometry hash {g[:12]} != "
+                            f"{w[:12]}): the procedural generator changed since the model was trained; "
+                            "use 'sim2real demo --train' or re-pack the model")
+
+
+def thumbnail(frame: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 -> (16, 32, 3) float block means in 0..255 (H, W multiples of 16, 32)."""
+    h, w, c = frame.shape
+    bh, bw = h // THUMB[0], w // THUMB[1]
+    return frame.astype(np.float64).reshape(THUMB[0], bh, THUMB[1], bw, c).mean(axis=(1, 3))
+
+
+def reference_frames(model, scene_dir: Path, trajectory: Path) -> list[np.ndarray]:
+    """The translated frames of the check trajectory (ray-cast here, translated as unrelated views)."""
+    from sim2real.render.raycast import RayCaster
+    from sim2real.scene.scene import Scene
+    from sim2real.scene.trajectory import Trajectory
+
+    scene = Scene.load(scene_dir)
+    caster = RayCaster(scene)
+    gbuffers = [caster.render(cam) for cam in Trajectory.load(trajectory).cameras]
+    return model.translate_gbuffers(scene.name, gbuffers)
+
+
+def _halved(state: dict) -> dict:
+    return {k: v.half() if v.is_floating_point() and v.numel() >= HALF_MIN else v for k, v in state.items()}
+
+
+def pack(run_dir: Path, seed: int, scores: dict, out: Path = HERE, frames: int = 100) -> dict:
+    """Make the shipped files in ``out`` from the finished run ``run_dir``, trained on the embedded
+    data of seed ``seed`` (its scene folders must still exist). ``scores``: what the run scored and,
+    under ``trained``, how it was trained (kept in the record). Returns the record."""
+    import torch
+
+    from sim2real.engine.checkpoint import FORMAT as CKPT_FORMAT, find_run_checkpoint, load_checkpoint, save_checkpoint
+    from sim2real.fileio import atomic_write_json
+    from sim2real.inference.translate import load_run
+    from sim2real.render.raycast import RayCaster
+    from sim2real.scene.scene import Scene
+    from sim2real.scene.trajectory import Trajectory, make_trajectory
+
+    src = find_run_checkpoint(run_dir)
+    state = load_checkpoint(src)
+    scene_dirs = [Path(s["scene_dir"]) for s in state["scenes"]]
+    cfg = state["config"]
+    h, w = cfg["data"]["height"], cfg["data"]["width"]
+    shipped = {"format": CKPT_FORMAT, "step": state["step"], "config": state["config"], "method": state["method"],
+               "inputs": {"scenes": [s["name"] for s in state["scenes"]], "real": "stand-in real domain"},
+               "scenes": [{**s, "scene_dir": None, "views": None} for s in state["scenes"]],
+               "gen": _halved(state["gen"]), "dis": _halved(state["dis"]), "world_size": state.get("world_size", 1)}
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / (MODEL + ".new")
+    save_checkpoint(tmp, shipped)
+    # the reference values come from the packed (fp16-rounded) model on the CPU
+    traj = make_trajectory(RayCaster(Scene.load(scene_dirs[0])), frames, h, w, cfg["data"]["fov_x_deg"], seed=seed)
+    check = Trajectory(traj.cameras[:2], fps=traj.fps)
+    check.save(out / CHECK_TRAJECTORY)
+    model = load_run(out, device="cpu", checkpoint=tmp)
+    thumbs = [thumbnail(f).round(3).tolist() for f in reference_frames(model, scene_dirs[0], out / CHECK_TRAJECTORY)]
+    os.replace(tmp, out / MODEL)
+    record = {
+        "format": FORMAT,
+        "scene_seed": seed, "scenes": len(scene_dirs), "scene_names": [s["name"] for s in state["scenes"]],
+        "scene_hashes": scene_hashes(scene_dirs), "real_seed": seed,
+        "height": h, "width": w, "steps": int(state["step"]), "method": state["method"],
+        "trained": scores.pop("trained", None), "scores": scores,
+        "reference": {"frames": thumbs, "thumbnail": list(THUMB), "device": "cpu", "torch": torch.__version__},
+    }
+    atomic_write_json(out / RECORD, record)
+    return record
+
+
+def install_run(run_dir: Path, root: Path = HERE) -> Path:
+    """Copy the shipped checkpoint to ``run_dir/checkpoints/last.pt``, so that the demo's output
+    holds a run folder that ``translate``, ``evaluate`` and ``train --init-from`` accept."""
+    from sim2real.engine.checkpoint import LAST
+    from sim2real.fileio import atomic_path
+
+    dst = Path(run_dir) / "checkpoints" / LAST
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(dst) as tmp:
+        shutil.copyfile(model_path(root), tmp)
+    return dst
+
+
+def record_text(record: dict) -> str:
+    """One line on what the shipped model is."""
+    t = record.get("trained") or {}
+    how = f", {t['minutes']:g} min on {t['machine']}" if t.get("minutes") and t.get("machine") else ""
+    return f"{record['method']} at {record['height']}x{record['width']}, {record['steps']} training steps{how}"

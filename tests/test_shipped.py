@@ -1,0 +1,127 @@
+"""The trained demo model shipped in the package (sim2real/shipped): its size, its scenes, its
+frames against the values stored beside it, and the demo that uses it."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from sim2real import shipped
+from sim2real.cli.main import main
+from sim2real.engine import checkpoint as ckpt
+from sim2real.errors import UserError
+from sim2real.inference.translate import load_run
+from sim2real.scene.procedural import generate_scene
+
+
+@pytest.fixture(scope="module")
+def record():
+    return shipped.load_record()
+
+
+@pytest.fixture(scope="module")
+def scene_dirs(record, tmp_path_factory):
+    root = tmp_path_factory.mktemp("shipped_scenes")
+    return [generate_scene(record["scene_seed"] + k).save(root / f"sim_{k}") for k in range(record["scenes"])]
+
+
+def test_shipped_checkpoint_is_small_and_loads_as_fp32(record):
+    path = shipped.model_path()
+    assert path.stat().st_size <= 40 * 2**20
+    raw = torch.load(path, weights_only=True)
+    assert raw["step"] == record["steps"] > 0
+    assert "optimizers" not in raw and "rng" not in raw  # an inference checkpoint
+    big = [v for v in raw["gen"].values() if v.numel() >= shipped.HALF_MIN]
+    assert big and all(v.dtype == torch.float16 for v in big)
+    state = ckpt.load_checkpoint(path)
+    assert all(v.dtype != torch.float16 for part in ("gen", "dis") for v in state[part].values())
+    # the fp32 values are the stored fp16 values, exactly
+    k = next(k for k, v in raw["gen"].items() if v.numel() >= shipped.HALF_MIN)
+    assert torch.equal(state["gen"][k], raw["gen"][k].float())
+
+
+def test_generated_scenes_match_the_recorded_geometry_hash(record, scene_dirs):
+    shipped.check_scenes(record, scene_dirs)  # raises on a mismatch
+    assert shipped.scene_hashes(scene_dirs) == record["scene_hashes"]
+
+
+def test_a_changed_scene_is_refused_with_one_clear_line(record, scene_dirs, tmp_path):
+    from sim2real.scene.scene import Scene
+
+    scene = Scene.load(scene_dirs[1])
+    scene.objects[0].mesh.vertices[0] += [0.05, 0.0, 0.0]  # 0.05 mm: above the hash's 0.01 mm rounding
+    moved = scene.save(tmp_path / "moved")
+    with pytest.raises(UserError) as e:
+        shipped.check_scenes(record, [scene_dirs[0], moved])
+    assert "geometry hash" in str(e.value) and str(moved) in str(e.value) and "\n" not in str(e.value)
+
+
+def test_shipped_model_translates_the_demo_path_like_the_stored_values(record, scene_dirs):
+    model = load_run(shipped.HERE, device="cpu", checkpoint=shipped.model_path())
+    frames = shipped.reference_frames(model, scene_dirs[0], shipped.HERE / shipped.CHECK_TRAJECTORY)
+    assert len(frames) == 2 == len(record["reference"]["frames"])
+    for frame, stored in zip(frames, record["reference"]["frames"]):
+        assert frame.shape == (record["height"], record["width"], 3)
+        diff = np.abs(shipped.thumbnail(frame) - np.asarray(stored))  # 0..255 block means
+        assert diff.max() <= 2.0 and diff.mean() <= 0.5, (diff.max(), diff.mean())
+    # the two frames differ (the camera moved): the check can tell frames apart
+    assert np.abs(np.asarray(record["reference"]["frames"][0]) - np.asarray(record["reference"]["frames"][1])).max() > 2.0
+
+
+def test_demo_uses_the_shipped_model_end_to_end(tmp_path):
+    out = tmp_path / "demo"
+    code = main(["demo", "--out", str(out), "--frames", "3", "--real-images", "8", "--eval-views", "4",
+                 "--seg-iterations", "5", "--device", "cpu"])
+    assert code == 0
+    info = json.loads((out / "demo.json").read_text())
+    rec = shipped.load_record()
+    assert info["model"] == "shipped" and info["training_steps"] == rec["steps"]
+    # the demo's run folder holds the shipped checkpoint, byte for byte
+    assert (out / "run" / "checkpoints" / ckpt.LAST).read_bytes() == shipped.model_path().read_bytes()
+    metrics = json.loads((out / info["metrics"]).read_text())
+    assert metrics["run"]["step"] == rec["steps"]
+    assert len(list((out / "video" / "frames").glob("*.png"))) == 3
+    # the figure: rows a_ref, ceiling, the model; a label column and views 0, T/2, T-1, 0 revisited
+    from PIL import Image
+
+    w, h = Image.open(out / info["figure"]).size
+    assert 5 * rec["width"] <= w < 5 * rec["width"] + 40 and 3 * rec["height"] <= h < 3 * rec["height"] + 40
+
+
+@pytest.mark.parametrize("extra,words", [
+    (["--seed", "5"], "add --train"),
+    (["--minutes", "3"], "add --train"),
+    (["--preset", "tiny"], "add --train"),
+    (["--scenes", "1"], "add --train"),
+])
+def test_demo_without_train_refuses_training_flags_and_other_scenes(tmp_path, capsys, extra, words):
+    code = main(["demo", "--out", str(tmp_path / "out"), *extra])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and words in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_resuming_the_shipped_checkpoint_is_refused(tmp_path, capsys):
+    run = tmp_path / "run"
+    shipped.install_run(run)
+    code = main(["train", "--out", str(run), "--resume"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "--init-from" in err and "Traceback" not in err, err
+
+
+def test_init_from_shipped_starts_a_new_scene_from_the_shipped_networks(train_inputs, tmp_path, capsys):
+    """``sim2real train --init-from shipped``: the shipped translator and discriminators (fp32),
+    fresh textures for the user's own scene."""
+    scene, real = train_inputs
+    code = main(["train", "--preset", "small", "--set", "generator.filters=16", "discriminator.filters=16",
+                 "data.workers=0", "--scenes", str(scene), "--real", str(real), "--device", "cpu", "--no-progress",
+                 "--iterations", "1", "--init-from", "shipped", "--out", str(tmp_path / "new")])
+    assert code == 0, capsys.readouterr().err
+    src = ckpt.load_checkpoint(shipped.model_path())
+    step0 = ckpt.load_checkpoint(tmp_path / "new" / "checkpoints" / ckpt.step_name(0))
+    assert step0["inputs"]["init_from"] == str(shipped.model_path())
+    for part in ("gen", "dis"):
+        moved = [k for k in src[part] if not k.startswith("textures.")]
+        assert moved and all(torch.equal(step0[part][k], src[part][k]) for k in moved), part
+    assert not any(k.startswith("textures.scene_procedural_0000") for k in step0["gen"])
