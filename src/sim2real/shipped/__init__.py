@@ -11,7 +11,7 @@ This folder holds, beside this module:
   trained, what it scored, and reference values of two translated frames of the demo's test path.
 * ``demo_model_check.txt``: those two frames' cameras (a trajectory file).
 
-:func:`pack` makes the three files from a finished run; ``benchmarks/pack_demo_model.py`` is its
+:func:`pack` makes the three files from a finished run; ``python -m sim2real.shipped`` is its
 command.
 """
 
