@@ -61,3 +61,22 @@ def test_a_failing_setup_raises_in_the_caller():
     with pytest.raises(UserError, match="bad offset -1"):
         with WorkerPool(2, _setup, (-1,)) as pool:
             list(pool.imap(_job, range(4)))
+
+
+def _thread_counts(state: dict, _job) -> tuple[list[int], int]:
+    import numpy  # noqa: F401  (loads OpenBLAS now: after the worker started, as ray casting does)
+    import torch
+    from threadpoolctl import threadpool_info
+
+    return sorted({d["num_threads"] for d in threadpool_info()}), torch.get_num_threads()
+
+
+def test_workers_run_one_thread_even_for_libraries_loaded_after_start_up(monkeypatch):
+    """A worker whose main module has not loaded numpy (the ``sim2real`` entry point) loads it
+    only while running its jobs: OpenBLAS and torch must start single-threaded there too. Two
+    OpenBLAS threads in each of two ray-casting workers halved ``sim2real render``'s rate."""
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    with WorkerPool(2, _setup, (0,)) as pool:
+        out = list(pool.imap(_thread_counts, range(2)))
+    assert out == [([1], 1), ([1], 1)]

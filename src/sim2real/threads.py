@@ -21,12 +21,23 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def single_thread_worker(*_args) -> None:
-    """Limit this process's BLAS/OpenMP pools (threadpoolctl) and torch to one thread each."""
+    """Limit this process's BLAS/OpenMP pools and torch to one thread each: those already loaded
+    (threadpoolctl, ``torch.set_num_threads``) and those loaded later, which read the environment.
+
+    The second half matters: a spawned worker of the ``sim2real`` entry point has not loaded numpy
+    when this runs, so threadpoolctl finds no OpenBLAS to limit, and numpy loaded by the first job
+    started two threads per worker; ``sim2real render`` then ran at 16 views/s instead of 34
+    (benchmarks/bench_raycast.py, 2-core dev machine)."""
     import sys
 
     from threadpoolctl import threadpool_limits
 
+    for var in _THREAD_VARS:
+        os.environ[var] = "1"
     threadpool_limits(limits=1)
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
