@@ -31,8 +31,9 @@ import time
 from pathlib import Path
 
 
-def data(root: Path, height: int, width: int, frames: int) -> tuple[list[Path], Path, Path]:
-    """The shared inputs, made once under ``root``: scenes, real folder, test trajectory."""
+def data(root: Path, height: int, width: int, frames: int, seed: int = 0) -> tuple[list[Path], Path, Path]:
+    """The shared inputs, made once under ``root``: scenes and real folder of ``seed``, test
+    trajectory (seed 0 of the first scene)."""
     from sim2real.data.embedded import make_embedded_data
     from sim2real.render.raycast import RayCaster
     from sim2real.scene.scene import Scene
@@ -40,7 +41,7 @@ def data(root: Path, height: int, width: int, frames: int) -> tuple[list[Path], 
 
     done = root / "done.json"
     if not done.is_file():
-        sim, real = make_embedded_data(root, 0, 2, 200, height, width, say=lambda m: print(m, file=sys.stderr))
+        sim, real = make_embedded_data(root, seed, 2, 200, height, width, say=lambda m: print(m, file=sys.stderr))
         make_trajectory(RayCaster(Scene.load(sim[0])), frames, height, width, 75.0, seed=0).save(root / "trajectory.txt")
         done.write_text(json.dumps({"scenes": [str(s) for s in sim], "real": str(real)}))
     info = json.loads(done.read_text())
@@ -49,6 +50,15 @@ def data(root: Path, height: int, width: int, frames: int) -> tuple[list[Path], 
 
 def _fraction(c, c_ceiling):
     return None if c is None or not c_ceiling else round(c / c_ceiling, 3)
+
+
+def _setting(args) -> str:
+    parts = list(args.set)
+    if args.init_from:
+        parts.append(f"--init-from {args.init_from}")
+    if args.data_seed:
+        parts.append(f"--data-seed {args.data_seed}")
+    return " ".join(parts) or "(demo defaults)"
 
 
 def run(args) -> dict:
@@ -61,7 +71,7 @@ def run(args) -> dict:
     from sim2real.threads import usable_cores
 
     cfg = override(demo_config(None, False, "cpu", args.method), args.set)
-    scenes, real, traj = data(Path(args.data), cfg.data.height, cfg.data.width, args.frames)
+    scenes, real, traj = data(Path(args.data), cfg.data.height, cfg.data.width, args.frames, args.data_seed)
     out = Path(args.out) / args.name
     torch.set_num_threads(usable_cores())
     record = out / "study.json"  # the run's minutes so far (a resumed row reports the total)
@@ -74,7 +84,13 @@ def run(args) -> dict:
         cfg = from_dict(TrainConfig, load_checkpoint(last)["config"])
         trainer = Trainer(cfg, None, None, out / "run", resume=last, progress=False)
     else:
-        trainer = Trainer(cfg, [str(s) for s in scenes], str(real / "images"), out / "run", progress=False)
+        init = None
+        if args.init_from:
+            from sim2real import shipped
+
+            init = shipped.model_path() if args.init_from == "shipped" else args.init_from
+        trainer = Trainer(cfg, [str(s) for s in scenes], str(real / "images"), out / "run", progress=False,
+                          init_from=init)
     t0 = time.perf_counter()
     try:
         trainer.train(time_limit_s=60.0 * args.minutes)
@@ -85,7 +101,7 @@ def run(args) -> dict:
     m = evaluate(out / "run", [str(scenes[0])], real, out / f"evaluation_{trainer.step:07d}", trajectories=[str(traj)],
                  settings=EvalSettings(views=32, frames=args.frames, seed=0), device="cpu", progress=False)
     rows = m["rows"]
-    row = {"lever": args.lever, "setting": f"{args.name}, continued" if args.resume else " ".join(args.set) or "(demo defaults)", "method": args.method,
+    row = {"lever": args.lever, "setting": f"{args.name}, continued" if args.resume else _setting(args), "method": args.method,
            "minutes": round(minutes, 1), "steps": trainer.step, "cores": usable_cores(),
            "threads": torch.get_num_threads(), "command": " ".join(map(shlex.quote, sys.argv))}
     for k in (1, 5, 10):
@@ -130,6 +146,10 @@ def main() -> None:
     ap.add_argument("--resume", action="store_true",
                     help="continue the row's run (--name) for --minutes more, then score it (the row gives the total)")
     ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--data-seed", type=int, default=0,
+                    help="seed of the scenes and real domain made under --data (0: the demo's)")
+    ap.add_argument("--init-from", help="start from a trained run's translator and discriminators "
+                    "(a run folder, a checkpoint, or 'shipped'), fresh textures")
     ap.add_argument("--rows", type=Path, help="append the row to this JSON-lines file")
     args = ap.parse_args()
     if args.table:
