@@ -89,6 +89,19 @@ def test_demo_uses_the_shipped_model_end_to_end(tmp_path):
     assert 5 * rec["width"] <= w < 5 * rec["width"] + 40 and 3 * rec["height"] <= h < 3 * rec["height"] + 40
 
 
+def test_demo_with_other_scenes_stops_before_writing_anything(tmp_path, capsys, monkeypatch):
+    """A generator that no longer makes the shipped model's scenes: one line, exit 2, and no
+    scenes or real images left behind in the output folder."""
+    rec = dict(shipped.load_record())
+    rec["scene_hashes"] = ["0" * 64] + rec["scene_hashes"][1:]
+    monkeypatch.setattr(shipped, "load_record", lambda: rec)
+    out = tmp_path / "demo"
+    code = main(["demo", "--out", str(out), "--frames", "3", "--device", "cpu"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "geometry hash" in err and "procedural_0000" in err, err
+    assert not any(out.rglob("*"))
+
+
 @pytest.mark.parametrize("extra,words", [
     (["--seed", "5"], "add --train"),
     (["--minutes", "3"], "add --train"),

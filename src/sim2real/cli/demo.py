@@ -116,8 +116,10 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
 
     steps_said = iter(("1/5", "2/5"))
+    # the shipped model's scenes are checked before anything is written (a mismatch leaves no demo)
     sim_dirs, _ = make_embedded_data(out, args.seed, args.scenes, args.real_images, h, w,
-                                     say=lambda m: print(f"demo: {next(steps_said)} {m}", flush=True))
+                                     say=lambda m: print(f"demo: {next(steps_said)} {m}", flush=True),
+                                     check=None if args.train else lambda scenes: shipped.check_scenes(record, scenes))
 
     if args.train:
         print(f"demo: 3/5 training for {args.minutes:g} min ({'GPU' if cuda else 'CPU'})", flush=True)
@@ -128,7 +130,6 @@ def run(args: argparse.Namespace) -> int:
             trainer.close()
         steps = trainer.step
     else:
-        shipped.check_scenes(record, sim_dirs)
         shipped.install_run(out / "run")
         steps = record["steps"]
         print(f"demo: 3/5 the shipped model ({shipped.record_text(record)}); its scenes' geometry matches", flush=True)

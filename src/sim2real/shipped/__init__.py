@@ -52,21 +52,26 @@ def load_record(root: Path = HERE) -> dict:
     return record
 
 
-def scene_hashes(scene_dirs) -> list[str]:
+def scene_hashes(scenes) -> list[str]:
+    """Geometry hashes of ``scenes`` (:class:`Scene` objects or scene folders)."""
     from sim2real.scene.scene import Scene
 
-    return [Scene.load(d).geometry_hash() for d in scene_dirs]
+    return [(s if isinstance(s, Scene) else Scene.load(s)).geometry_hash() for s in scenes]
 
 
-def check_scenes(record: dict, scene_dirs) -> None:
-    """Refuse scenes whose geometry is not the geometry the shipped textures were trained on."""
+def check_scenes(record: dict, scenes) -> None:
+    """Refuse scenes (objects or folders) whose geometry is not the geometry the shipped textures
+    were trained on."""
+    from sim2real.scene.scene import Scene
+
     want = record["scene_hashes"]
-    got = scene_hashes(scene_dirs)
+    got = scene_hashes(scenes)
     if len(got) != len(want):
         raise UserError(f"the shipped model was trained on {len(want)} scenes, not {len(got)}")
-    for d, g, w in zip(scene_dirs, got, want):
+    for s, g, w in zip(scenes, got, want):
         if g != w:
-            raise UserError(f"scene {d} does not match the shipped model's scene (geometry hash {g[:12]} != "
+            name = f"'{s.name}'" if isinstance(s, Scene) else str(s)
+            raise UserError(f"scene {name} does not match the shipped model's scene (geometry hash {g[:12]} != "
                             f"{w[:12]}): the procedural generator changed since the model was trained; "
                             "use 'sim2real demo --train' or re-pack the model")
 
