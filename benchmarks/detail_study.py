@@ -5,7 +5,9 @@ appends it to ``--rows`` (JSON lines). ``--table ROWS`` prints the markdown tabl
 Every run uses the same embedded data (``make_embedded_data``: seed 0, 2 scenes, the stand-in real
 domain at the training size), the same test trajectory (``make_trajectory`` of the first scene,
 seed 0, the evaluation's default motion budget: no training view lies on it) and the same seeds;
-only the lever's ``--set`` assignments differ from the demo's CPU configuration. Give every run
+only the lever's ``--set`` assignments differ from the demo's CPU configuration. ``--data-seed N``
+makes the data of other scenes (seeds N, N + 1) in another ``--data`` folder; ``--init-from``
+starts from a trained run or the shipped model instead of from scratch. Give every run
 the same minutes on an otherwise idle machine (the runs are equal in wall-clock, not in steps).
 Two rows may run at once, each pinned to its own core (``taskset -c 0`` / ``-c 1``); the row
 records the cores and threads it had, so rows are compared only with rows of the same share.
