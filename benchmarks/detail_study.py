@@ -86,13 +86,10 @@ def run(args) -> dict:
         cfg = from_dict(TrainConfig, load_checkpoint(last)["config"])
         trainer = Trainer(cfg, None, None, out / "run", resume=last, progress=False)
     else:
-        init = None
-        if args.init_from:
-            from sim2real import shipped
+        from sim2real import shipped
 
-            init = shipped.model_path() if args.init_from == "shipped" else args.init_from
         trainer = Trainer(cfg, [str(s) for s in scenes], str(real / "images"), out / "run", progress=False,
-                          init_from=init)
+                          init_from=shipped.init_source(args.init_from) if args.init_from else None)
     t0 = time.perf_counter()
     try:
         trainer.train(time_limit_s=60.0 * args.minutes)

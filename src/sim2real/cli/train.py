@@ -148,11 +148,10 @@ def run(args: argparse.Namespace) -> int:
         cfg = build_config(args)
     if args.init_from and args.resume:
         raise UserError("--init-from starts a new run; it cannot be combined with --resume")
-    if args.init_from == "shipped" and not Path("shipped").exists():
+    if args.init_from:
         from sim2real import shipped
 
-        shipped.load_record()  # one clear line when this installation has none
-        args.init_from = shipped.model_path()
+        args.init_from = shipped.init_source(args.init_from)
     trainer = Trainer(cfg, scenes=args.scenes, real=args.real, out=args.out, resume=path,
                       progress=not args.no_progress, resume_state=state, init_from=args.init_from)
     try:

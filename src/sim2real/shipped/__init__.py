@@ -40,6 +40,15 @@ def model_path(root: Path = HERE) -> Path:
     return root / MODEL
 
 
+def init_source(value: str | os.PathLike) -> str | os.PathLike:
+    """What ``--init-from VALUE`` names: the shipped checkpoint for ``shipped`` (unless a path of
+    that name exists), else ``value`` itself (a run folder or a checkpoint)."""
+    if str(value) != "shipped" or Path(value).exists():
+        return value
+    load_record()  # one clear line when this installation has none
+    return model_path()
+
+
 def load_record(root: Path = HERE) -> dict:
     """The shipped model's record; one clear error when this installation has none."""
     from sim2real.fileio import read_json
