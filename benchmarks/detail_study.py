@@ -54,6 +54,19 @@ def _fraction(c, c_ceiling):
     return None if c is None or not c_ceiling else round(c / c_ceiling, 3)
 
 
+def _cpu_name() -> str:
+    """The CPU model (rows of different machines differ in steps per minute)."""
+    import platform
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def _setting(args) -> str:
     parts = list(args.set)
     if args.init_from:
@@ -102,18 +115,18 @@ def run(args) -> dict:
     rows = m["rows"]
     row = {"lever": args.lever, "setting": f"{args.name}, continued" if args.resume else _setting(args), "method": args.method,
            "minutes": round(minutes, 1), "steps": trainer.step, "cores": usable_cores(),
-           "threads": torch.get_num_threads(), "command": " ".join(map(shlex.quote, sys.argv))}
+           "threads": torch.get_num_threads(), "machine": _cpu_name(), "command": " ".join(map(shlex.quote, sys.argv))}
     for k in (1, 5, 10):
         c, c_ceiling = rows["model"][f"orb_{k}_correct"], rows["ceiling"][f"orb_{k}_correct"]
         row[f"orb_{k}_of_ceiling"] = _fraction(c, c_ceiling)
         row[f"orb_{k}_accuracy"] = rows["model"][f"orb_{k}_accuracy"]
         row[f"orb_{k}_ceiling_correct"] = c_ceiling
+        row[f"floor_orb_{k}_of_ceiling"] = _fraction(rows["floor"][f"orb_{k}_correct"], c_ceiling)
     row.update(detail=rows["model"].get("detail"), detail_ceiling=rows["ceiling"].get("detail"),
                dice=m["dice"], dice_a_ref=m["dice_a_ref"],
                # a_ref's Dice is withheld when the segmenter seeds disagree; the row keeps the mean
                dice_a_ref_mean=m["dice_info"]["rows"].get("a_ref", {}).get("mean"),
-               a_ref_orb_1_of_ceiling=_fraction(rows["a_ref"]["orb_1_correct"], rows["ceiling"]["orb_1_correct"]),
-               floor_orb_1_of_ceiling=_fraction(rows["floor"]["orb_1_correct"], rows["ceiling"]["orb_1_correct"]))
+               a_ref_orb_1_of_ceiling=_fraction(rows["a_ref"]["orb_1_correct"], rows["ceiling"]["orb_1_correct"]))
     return row
 
 
@@ -126,7 +139,7 @@ def table(rows_file: Path) -> str:
     for line in rows_file.read_text().splitlines():
         r = json.loads(line)
         orb = [f"{f(r[f'orb_{k}_of_ceiling'], True)} ({f(r[f'orb_{k}_accuracy'], True)})" for k in (1, 5, 10)]
-        setting = r["setting"] if r["method"] == "ours" else f"--method {r['method']}"
+        setting = r["setting"] if r["method"] == "ours" else f"--method {r['method']} {r['setting']}".replace(" (demo defaults)", "")
         lines.append(f"| {r['lever']} | `{setting}` | {r['minutes']} ({r.get('cores', '?')}) | {r['steps']} | " + " | ".join(orb)
                      + f" | {f(r['detail'])} | {f(r['dice'])} ({f(r['dice_a_ref'] or r.get('dice_a_ref_mean'))}) |")
     return "\n".join(lines)
