@@ -124,8 +124,9 @@ def run(args) -> dict:
         row[f"floor_orb_{k}_of_ceiling"] = _fraction(rows["floor"][f"orb_{k}_correct"], c_ceiling)
     row.update(detail=rows["model"].get("detail"), detail_ceiling=rows["ceiling"].get("detail"),
                dice=m["dice"], dice_a_ref=m["dice_a_ref"],
-               # a_ref's Dice is withheld when the segmenter seeds disagree; the row keeps the mean
+               # a Dice is withheld when the segmenter seeds disagree; the row keeps the means
                dice_a_ref_mean=m["dice_info"]["rows"].get("a_ref", {}).get("mean"),
+               dice_mean=m["dice_info"]["rows"].get("model", {}).get("mean"),
                a_ref_orb_1_of_ceiling=_fraction(rows["a_ref"]["orb_1_correct"], rows["ceiling"]["orb_1_correct"]))
     return row
 
@@ -141,7 +142,7 @@ def table(rows_file: Path) -> str:
         orb = [f"{f(r[f'orb_{k}_of_ceiling'], True)} ({f(r[f'orb_{k}_accuracy'], True)})" for k in (1, 5, 10)]
         setting = r["setting"] if r["method"] == "ours" else f"--method {r['method']} {r['setting']}".replace(" (demo defaults)", "")
         lines.append(f"| {r['lever']} | `{setting}` | {r['minutes']} ({r.get('cores', '?')}) | {r['steps']} | " + " | ".join(orb)
-                     + f" | {f(r['detail'])} | {f(r['dice'])} ({f(r['dice_a_ref'] or r.get('dice_a_ref_mean'))}) |")
+                     + f" | {f(r['detail'])} | {f(r['dice'] or r.get('dice_mean'))} ({f(r['dice_a_ref'] or r.get('dice_a_ref_mean'))}) |")
     return "\n".join(lines)
 
 
