@@ -34,6 +34,7 @@ def main() -> None:
     from sim2real import shipped
     from sim2real.config import TrainConfig, from_dict
     from sim2real.data.real import load_rgb
+    from sim2real.data.tensors import view_tensors
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.inference.anchors import Anchors, stand_in_options
     from sim2real.inference.realset import fit_image
@@ -82,7 +83,8 @@ def main() -> None:
     def tensor(im: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.array(im)).permute(2, 0, 1)[None].float() / 127.5 - 1
 
-    a_ref = [tensor(im) for im in videos["a_ref"]]
+    # a_ref as the structure term sees it in training (float, not the uint8 frame)
+    a_ref = view_tensors(gbs, "i")["a_ref_i"].split(1)
     L = cfg.loss
     out = {}
     with torch.no_grad():
