@@ -81,7 +81,15 @@ class LossConfig:
     rec: float = 10.0
     content: float = 1.0
     ssim_ab: float = 5.0
-    """1 - MS-SSIM between grey a_ref and grey b_hat."""
+    """Weight of the a -> b structure term: by default 1 - MS-SSIM between grey a_ref and grey b_hat."""
+    ab_structure: str = "ms_ssim"
+    """What the a -> b structure term compares: 'ms_ssim' (the paper) or 'edges', the edge recall of
+    b_hat at a_ref's edges, which charges neither the real domain's shading nor its texture
+    (sim2real/losses/structure.py)."""
+    edge_contrast: float = 0.02
+    """'edges': the grey contrast per pixel that counts as an edge (tanh scale)."""
+    edge_sigma: float = 1.0
+    """'edges': Gaussian blur (px) of both images before their gradients; 0: none."""
     ssim_ba: float = 3.0
     """1 - MS-SSIM between grey b and grey a_hat_ref."""
     ssim_win: int = 11
@@ -201,6 +209,7 @@ def validate(cfg: TrainConfig) -> None:
     Raises a :class:`UserError` naming the offending key.
     """
     from sim2real.losses.ssim import MS_SSIM_WEIGHTS, check_ssim_size
+    from sim2real.losses.structure import STRUCTURES
     from sim2real.models.discriminator import min_input_side as dis_min_side
     from sim2real.models.layers import NORMS, PADS
     from sim2real.models.translator import min_input_side as gen_min_side
@@ -233,6 +242,9 @@ def validate(cfg: TrainConfig) -> None:
     for name in ("adv", "cyc", "rec", "content", "ssim_ab", "ssim_ba"):
         v = getattr(L, name)
         need(math.isfinite(v) and v >= 0, f"loss.{name}", "a finite weight >= 0", v)
+    choice(L.ab_structure, "loss.ab_structure", STRUCTURES)
+    need(math.isfinite(L.edge_contrast) and L.edge_contrast > 0, "loss.edge_contrast", "finite and > 0", L.edge_contrast)
+    need(math.isfinite(L.edge_sigma) and L.edge_sigma >= 0, "loss.edge_sigma", "finite and >= 0", L.edge_sigma)
     need(1 <= L.ssim_scales <= len(MS_SSIM_WEIGHTS), "loss.ssim_scales", f"in 1..{len(MS_SSIM_WEIGHTS)}", L.ssim_scales)
     for name in ("lr_net", "lr_tex"):
         v = getattr(o, name)

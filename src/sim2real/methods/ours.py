@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from sim2real.config import MethodConfig, TextureConfig, register_method_config
-from sim2real.losses import l1, ms_ssim_loss, view_consistency, warp_backward
+from sim2real.losses import l1, ms_ssim_loss, structure_ab_loss, view_consistency, warp_backward
 from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, rgb
 from sim2real.methods.common import DisStage, adv_terms, dis_terms, pad_apply, translator_terms, translator_weights
 
@@ -190,7 +190,7 @@ class Ours(Method):
             "content_b": l1(f["c_b_rec"], f["c_b"]),
         }
         if L.ssim_ab:
-            losses["ssim_ab"] = ms_ssim_loss(f["x_a"][:, n:], f["b_hat"], L.ssim_win, L.ssim_scales)
+            losses["ssim_ab"] = structure_ab_loss(f["x_a"][:, n:], f["b_hat"], L)
         if L.ssim_ba:
             losses["ssim_ba"] = ms_ssim_loss(f["x_b"], f["a_hat"][:, n:], L.ssim_win, L.ssim_scales)
         if "b_hat_j_warped" in out:

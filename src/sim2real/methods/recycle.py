@@ -65,7 +65,7 @@ import torch
 from torch import nn
 
 from sim2real.config import MethodConfig, register_method_config
-from sim2real.losses import l1, lsgan_dis_loss, lsgan_gen_loss, ms_ssim_loss
+from sim2real.losses import l1, lsgan_dis_loss, lsgan_gen_loss, ms_ssim_loss, structure_ab_loss
 from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, rgb
 from sim2real.methods.common import DisStage, pad_apply
 
@@ -247,9 +247,9 @@ class Recycle(Method):
             losses["idt_a"] = per_frame(l1, f["idt_a01"], a)
         if self.mc.ssim:
             L = self.cfg.loss
-            ssim = lambda x, y: ms_ssim_loss(y, x, L.ssim_win, L.ssim_scales)  # (input, its translation)
-            losses["ssim_ab"] = per_frame(ssim, f["b_hat01"], a)
-            losses["ssim_ba"] = per_frame(ssim, f["a_hat01"], b)
+            # (translation, its input)
+            losses["ssim_ab"] = per_frame(lambda x, y: structure_ab_loss(y, x, L), f["b_hat01"], a)
+            losses["ssim_ba"] = per_frame(lambda x, y: ms_ssim_loss(y, x, L.ssim_win, L.ssim_scales), f["a_hat01"], b)
         return losses
 
     def image_rows(self, batch: Batch, out: Out) -> list[list[torch.Tensor]]:

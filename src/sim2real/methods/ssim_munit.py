@@ -58,7 +58,7 @@ import numpy as np
 import torch
 
 from sim2real.config import MethodConfig, register_method_config
-from sim2real.losses import l1, ms_ssim_loss
+from sim2real.losses import l1, ms_ssim_loss, structure_ab_loss
 from sim2real.methods.base import Batch, Method, OptimGroup, Out, SequenceTranslator, Stage, rgb
 from sim2real.methods.common import DisStage, adv_terms, dis_terms, pad_apply, translator_weights
 
@@ -239,7 +239,7 @@ class SsimMunit(Method):
             losses["cyc_a"] = l1(f["a_cyc"], f["x_a"])
             losses["cyc_b"] = l1(f["b_cyc"], f["x_b"])
         if L.ssim_ab:
-            losses["ssim_ab"] = ms_ssim_loss(f["x_a"], f["b_hat"], L.ssim_win, L.ssim_scales)
+            losses["ssim_ab"] = structure_ab_loss(f["x_a"], f["b_hat"], L)
         if L.ssim_ba:
             losses["ssim_ba"] = ms_ssim_loss(f["x_b"], f["a_hat"], L.ssim_win, L.ssim_scales)
         return losses
