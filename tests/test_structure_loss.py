@@ -67,6 +67,9 @@ def test_edges_weigh_by_their_strength_by_hand():
     x[:, 20:] = 1.0
     want = 0.8 * (1 - math.tanh(2)) + 0.2
     assert edge_recall_loss(a, image(x), contrast=0.25, sigma=0).item() == pytest.approx(want, abs=1e-5)
+    # power 2: weights 0.25^2 / (0.25^2 + 0.0625^2) = 16/17 and 1/17
+    want = 16 / 17 * (1 - math.tanh(2)) + 1 / 17
+    assert edge_recall_loss(a, image(x), contrast=0.25, sigma=0, power=2).item() == pytest.approx(want, abs=1e-5)
 
 
 def test_blurred_random_images_match_an_independent_scipy_computation():
@@ -80,9 +83,11 @@ def test_blurred_random_images_match_an_independent_scipy_computation():
 
     (ax, ay), (xx, xy) = grad(ga), grad(gx)
     m2 = ax**2 + ay**2
-    want = (m2 / m2.sum() * (1 - np.tanh(np.abs(ax * xx + ay * xy) / (np.sqrt(m2) * c)))).sum()
-    got = edge_recall_loss(image(ga), image(gx), contrast=c, sigma=sigma).item()
-    assert got == pytest.approx(want, abs=1e-5)
+    for power in (1.0, 2.0):
+        w = m2**power / (m2**power).sum()
+        want = (w * (1 - np.tanh(np.abs(ax * xx + ay * xy) / (np.sqrt(m2) * c)))).sum()
+        got = edge_recall_loss(image(ga), image(gx), contrast=c, sigma=sigma, power=power).item()
+        assert got == pytest.approx(want, abs=1e-5)
 
 
 def test_an_edgeless_a_gives_zero_and_the_gradient_reaches_the_missing_edge():
@@ -102,13 +107,13 @@ def test_structure_ab_loss_switches_on_the_config():
     a, x = (image(v) for v in rng.uniform(0, 1, (2, 40, 40)).astype(np.float32))
     L = LossConfig(ssim_win=3)
     assert structure_ab_loss(a, x, L).item() == pytest.approx(ms_ssim_loss(a, x, win=3).item(), abs=1e-7)
-    L = LossConfig(ab_structure="edges", edge_contrast=0.1, edge_sigma=0.5)
+    L = LossConfig(ab_structure="edges", edge_contrast=0.1, edge_sigma=0.5, edge_power=2)
     assert structure_ab_loss(a, x, L).item() == pytest.approx(
-        edge_recall_loss(a, x, contrast=0.1, sigma=0.5).item(), abs=1e-7)
+        edge_recall_loss(a, x, contrast=0.1, sigma=0.5, power=2).item(), abs=1e-7)
 
 
 @pytest.mark.parametrize("key, value", [("loss.ab_structure", "sobel"), ("loss.edge_contrast", "0"),
-                                        ("loss.edge_sigma", "-1")])
+                                        ("loss.edge_sigma", "-1"), ("loss.edge_power", "0")])
 def test_bad_structure_settings_name_the_key(key, value):
     with pytest.raises(UserError, match=key.replace(".", r"\.")):
         validate(override(TrainConfig(), [f"{key}={value}"]))

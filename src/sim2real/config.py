@@ -90,6 +90,8 @@ class LossConfig:
     """'edges': the grey contrast per pixel that counts as an edge (tanh scale)."""
     edge_sigma: float = 1.0
     """'edges': Gaussian blur (px) of both images before their gradients; 0: none."""
+    edge_power: float = 1.0
+    """'edges': a_ref's pixels weigh |gradient|^(2 edge_power): 2 leaves the weight to the outlines."""
     ssim_ba: float = 3.0
     """1 - MS-SSIM between grey b and grey a_hat_ref."""
     ssim_win: int = 11
@@ -245,6 +247,7 @@ def validate(cfg: TrainConfig) -> None:
     choice(L.ab_structure, "loss.ab_structure", STRUCTURES)
     need(math.isfinite(L.edge_contrast) and L.edge_contrast > 0, "loss.edge_contrast", "finite and > 0", L.edge_contrast)
     need(math.isfinite(L.edge_sigma) and L.edge_sigma >= 0, "loss.edge_sigma", "finite and >= 0", L.edge_sigma)
+    need(math.isfinite(L.edge_power) and L.edge_power > 0, "loss.edge_power", "finite and > 0", L.edge_power)
     need(1 <= L.ssim_scales <= len(MS_SSIM_WEIGHTS), "loss.ssim_scales", f"in 1..{len(MS_SSIM_WEIGHTS)}", L.ssim_scales)
     for name in ("lr_net", "lr_tex"):
         v = getattr(o, name)
