@@ -87,7 +87,7 @@ class LossConfig:
     b_hat at a_ref's edges, which charges neither the real domain's shading nor its texture
     (sim2real/losses/structure.py)."""
     edge_contrast: float = 0.02
-    """'edges': the grey contrast per pixel that counts as an edge (tanh scale)."""
+    """'edges': the grey contrast per pixel that counts as an edge (tanh scale; chosen at 128x256)."""
     edge_sigma: float = 1.0
     """'edges': Gaussian blur (px) of both images before their gradients; 0: none."""
     edge_power: float = 1.0

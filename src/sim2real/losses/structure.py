@@ -21,9 +21,10 @@ a good part of the weight; k = 2 leaves it almost all to the outlines. L is in
 [0, 1]: 0 for strong edges in the same place, 1 for none there. It does not depend on the edges'
 sign (a wall darker than the liver in the real domain and lighter in a_ref is no charge), and
 edges b_hat has where a_ref has none, such as texture and highlights, cost nothing. An a_ref without
-edges gives 0. On the demo's path (``c`` 0.02, ``sigma`` 1) it charges a perfect video 0.027 and the
-shipped model's frames 0.025, but the perfect video shifted by 4 px 0.58 and another view's 0.74;
-with k = 2, 0.007, 0.012, 0.61 and 0.73.
+edges gives 0. On the demo's path (``c`` 0.02, ``sigma`` 1, ``benchmarks/loss_probe.py``) it charges
+a perfect video 0.028 and the shipped model's frames 0.025, but the perfect video shifted by 4 px
+0.60 and another view's 0.76; with k = 2, 0.007, 0.012, 0.63 and 0.76. ``c`` is per pixel: it was
+chosen at 128x256, and larger frames have weaker gradients per pixel for the same outline.
 """
 
 from __future__ import annotations
