@@ -63,10 +63,10 @@ def edge_recall_loss(a: torch.Tensor, x: torch.Tensor, contrast: float = 0.02, s
     return (w * (1 - torch.tanh(across))).sum((1, 2)).mean()
 
 
-def structure_ab_loss(a: torch.Tensor, b_hat: torch.Tensor, loss_cfg) -> torch.Tensor:
-    """The a -> b structure term that ``loss_cfg.ab_structure`` names (weight ``loss.ssim_ab``):
-    the paper's ``1 - MS-SSIM`` of grey images, or the edge recall of b_hat at a_ref's edges."""
-    L = loss_cfg
+def structure_ab_loss(a: torch.Tensor, b_hat: torch.Tensor, L) -> torch.Tensor:
+    """The a -> b structure term that the loss config ``L.ab_structure`` names (weight
+    ``loss.ssim_ab``): the paper's ``1 - MS-SSIM`` of grey images, or the edge recall of b_hat at
+    a_ref's edges."""
     if L.ab_structure == "edges":
         return edge_recall_loss(a, b_hat, L.edge_contrast, L.edge_sigma, L.edge_power)
     return ms_ssim_loss(a, b_hat, L.ssim_win, L.ssim_scales)

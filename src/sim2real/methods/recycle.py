@@ -247,9 +247,9 @@ class Recycle(Method):
             losses["idt_a"] = per_frame(l1, f["idt_a01"], a)
         if self.mc.ssim:
             L = self.cfg.loss
-            # (translation, its input)
-            losses["ssim_ab"] = per_frame(lambda x, y: structure_ab_loss(y, x, L), f["b_hat01"], a)
-            losses["ssim_ba"] = per_frame(lambda x, y: ms_ssim_loss(y, x, L.ssim_win, L.ssim_scales), f["a_hat01"], b)
+            losses["ssim_ab"] = per_frame(lambda b_hat, a_t: structure_ab_loss(a_t, b_hat, L), f["b_hat01"], a)
+            losses["ssim_ba"] = per_frame(lambda a_hat, b_t: ms_ssim_loss(b_t, a_hat, L.ssim_win, L.ssim_scales),
+                                          f["a_hat01"], b)
         return losses
 
     def image_rows(self, batch: Batch, out: Out) -> list[list[torch.Tensor]]:
