@@ -172,6 +172,27 @@ def test_view_j_gets_no_gradient(inputs, tmp_path):
     assert not out["b_hat_j"].requires_grad and not out["b_hat_j_warped"].requires_grad
 
 
+def test_reconstruction_targets_carry_gradient_into_the_texture_only_if_asked(inputs, tmp_path):
+    """rec_a = mean |a_rec - x_a|: through its target x_a it sends d/dx_a = -sign(a_rec - x_a) / numel
+    into the texture (the release); with ``method.target_grad=false`` only through a_rec."""
+    scenes, real = inputs
+    for flag in (True, False):
+        trainer = Trainer(tiny_config(method__target_grad=flag), [scenes], real, tmp_path / f"r{flag}", progress=False)
+        batch = trainer._to_device(default_collate([trainer.dataset[0]]))
+        out = trainer.method.translate(trainer.gen, batch, 0)
+        out["a_rec"] = out["a_rec"].detach()  # the prediction path off: what is left is the target's
+        x_a = out["x_a"]
+        x_a.retain_grad()
+        rec_a = trainer.method.gen_losses(trainer.dis, batch, out, 0)["rec_a"]
+        torch.testing.assert_close(rec_a, (out["a_rec"] - x_a).abs().mean())  # same value either way
+        if flag:
+            rec_a.backward()
+            torch.testing.assert_close(x_a.grad, -torch.sign(out["a_rec"] - x_a.detach()) / x_a.numel())
+            assert trainer.gen.textures[trainer.gen.scene_keys[0]].texture.grad.abs().sum() > 0
+        else:
+            assert not rec_a.requires_grad  # no path into x_a: the texture learns only through the outputs
+
+
 def test_mixed_precision_path_on_cpu(inputs, tmp_path, monkeypatch):
     """The CUDA path (bf16 autocast, channels-last images and weights), run on the CPU: losses
     finite and within bf16 rounding of the fp32 step, the networks computing in bf16, the

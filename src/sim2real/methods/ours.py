@@ -39,6 +39,10 @@ class OursConfig(MethodConfig):
     """Iteration from which the view-consistency weight is ``vc`` (0 before)."""
     vc_kind: str = "angle"
     """'angle' (lighting invariant, paper) or 'l1' (the ablation)."""
+    target_grad: bool = True
+    """Whether x_a as the target of rec_a and cyc_a carries gradient into the texture (the authors'
+    release: it does, so the texture is also pulled towards what the translator reconstructs of it).
+    False detaches the targets: the texture learns only through the translator's outputs."""
 
     @classmethod
     def for_size(cls, size: str) -> "OursConfig":
@@ -180,11 +184,12 @@ class Ours(Method):
     def gen_losses(self, dis: DisStage, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
         f = {k: v.float() for k, v in out.items() if v.is_floating_point()}
         L, n = self.cfg.loss, self.features
+        target_a = f["x_a"] if self.mc.target_grad else f["x_a"].detach()
         losses = {
             **adv_terms(dis, out),
-            "rec_a": l1(f["a_rec"], f["x_a"]),
+            "rec_a": l1(f["a_rec"], target_a),
             "rec_b": l1(f["b_rec"], f["x_b"]),
-            "cyc_a": l1(f["a_cyc"], f["x_a"]),
+            "cyc_a": l1(f["a_cyc"], target_a),
             "cyc_b": l1(f["b_cyc"], f["x_b"]),
             "content_a": l1(f["c_a_rec"], f["c_a"]),
             "content_b": l1(f["c_b_rec"], f["c_b"]),
