@@ -170,6 +170,8 @@ class OfUnit(Ours):
         out.update(prev_warped=prev, vc_mask=mask, frame=torch.tensor(last, device=a_ref.device))
         return out
 
+    target_grad = True  # x_a's extra channels are w(b_hat_prev), computed without gradient: nothing to detach
+
     def gen_losses(self, dis: DisStage, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
         """Ours' translation terms and ``vc`` = masked L1(b̂_t, w_t(b̂_{t-1})) (module docstring)."""
         losses = super().gen_losses(dis, batch, out, step)

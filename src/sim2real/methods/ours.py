@@ -94,6 +94,11 @@ class Ours(Method):
         return self.mc.texture.features
 
     @property
+    def target_grad(self) -> bool:
+        """Whether rec_a's and cyc_a's target x_a carries gradient (``method.target_grad``)."""
+        return self.mc.target_grad
+
+    @property
     def data(self) -> str:
         return "view_pairs" if self.mc.vc > 0 else "views"
 
@@ -184,7 +189,7 @@ class Ours(Method):
     def gen_losses(self, dis: DisStage, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
         f = {k: v.float() for k, v in out.items() if v.is_floating_point()}
         L, n = self.cfg.loss, self.features
-        target_a = f["x_a"] if self.mc.target_grad else f["x_a"].detach()
+        target_a = f["x_a"] if self.target_grad else f["x_a"].detach()
         losses = {
             **adv_terms(dis, out),
             "rec_a": l1(f["a_rec"], target_a),
