@@ -18,24 +18,25 @@ from sim2real.cli.demo import demo_config
 from sim2real.config import override
 from sim2real.engine.trainer import Trainer
 
+
+def hp(x):  # texel minus the mean of its 4 neighbours, per plane and feature
+    x = x.permute(0, 1, 4, 2, 3).reshape(-1, 1, *x.shape[2:4])
+    k = torch.tensor([[0, .25, 0], [.25, 0, .25], [0, .25, 0]]).view(1, 1, 3, 3)
+    return x[..., 1:-1, 1:-1] - torch.nn.functional.conv2d(x, k)
+
+
 ap = argparse.ArgumentParser()
 ap.add_argument("--data", required=True); ap.add_argument("--out", required=True)
 ap.add_argument("--steps", type=int, default=120)
 args = ap.parse_args()
-steps = args.steps
 torch.set_num_threads(1)
-scenes, real, _ = detail_study.data(Path(args.data), 128, 256, 100)
-res = {}
 for flag in ("true", "false"):
     cfg = override(demo_config(None, False, "cpu"), [f"method.target_grad={flag}", "method.texture.init_noise=1.0",
-                                                      f"iterations={steps}", "seed=0"])
+                                                      f"iterations={args.steps}", "seed=0"])
+    scenes, real, _ = detail_study.data(Path(args.data), cfg.data.height, cfg.data.width, 100)
     tr = Trainer(cfg, [str(s) for s in scenes], str(real / "images"), Path(args.out) / f"target_grad_{flag}", progress=False)
     tex = {k: t.texture.detach().clone() for k, t in tr.gen.textures.items()}
     t0 = time.time(); tr.train(); tr.close()
-    def hp(x):  # texel minus the mean of its 4 neighbours, per plane and feature
-        x = x.permute(0, 1, 4, 2, 3).reshape(-1, 1, *x.shape[2:4])
-        k = torch.tensor([[0, .25, 0], [.25, 0, .25], [0, .25, 0]]).view(1, 1, 3, 3)
-        return x[..., 1:-1, 1:-1] - torch.nn.functional.conv2d(x, k)
     out = {}
     for k, t in tr.gen.textures.items():
         a, b = tex[k], t.texture.detach()
@@ -44,5 +45,4 @@ for flag in ("true", "false"):
         out[k] = {"hp_std_start": ha.std().item(), "hp_std_end": hb.std().item(),
                   "hp_corr": torch.corrcoef(torch.stack([ha.flatten(), hb.flatten()]))[0, 1].item(),
                   "planes_moved": int(seen.sum())}
-    res[flag] = {"steps": tr.step, "s": round(time.time() - t0), "textures": out}
-    print(json.dumps({flag: res[flag]}), flush=True)
+    print(json.dumps({flag: {"steps": tr.step, "s": round(time.time() - t0), "textures": out}}), flush=True)
