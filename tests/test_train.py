@@ -193,6 +193,42 @@ def test_reconstruction_targets_carry_gradient_into_the_texture_only_if_asked(in
             assert not rec_a.requires_grad  # no path into x_a: the texture learns only through the outputs
 
 
+def test_texture_edge_term_asks_the_frame_for_the_texture_edges(inputs, tmp_path):
+    """``method.tex_edges``: edge recall of b_hat at a_tex's edges. A flat frame recalls no edge
+    (1 - tanh 0 = 1 exactly); the texture shown as the frame recalls every one; a_ref's channels
+    play no part; the texture enters as a target without gradient; off by default."""
+    scenes, real = inputs
+    off = Trainer(tiny_config(method__vc_start=0, method__texture__init_noise=1.0), [scenes], real, tmp_path / "off",
+                  progress=False)
+    assert off.method.loss_weights(0)["tex_edges"] == 0.0
+    batch = off._to_device(default_collate([off.dataset[0]]))
+    assert "tex_edges" not in off.method.gen_losses(off.dis, batch, off.method.translate(off.gen, batch, 0), 0)
+
+    trainer = Trainer(tiny_config(method__vc_start=0, method__texture__init_noise=1.0, method__tex_edges=2.0), [scenes],
+                      real, tmp_path / "on", progress=False)
+    m = trainer.method
+    assert m.loss_weights(0)["tex_edges"] == 2.0
+    out = m.translate(trainer.gen, batch, 0)
+    n = m.features
+    assert n == 3
+    tex = out["x_a"][:, :n].detach()
+
+    def term(b_hat, a_ref=None):
+        o = dict(out, b_hat=b_hat)
+        if a_ref is not None:
+            o["x_a"] = torch.cat((out["x_a"][:, :n], a_ref), 1)
+        return m.gen_losses(trainer.dis, batch, o, 0)["tex_edges"]
+
+    assert term(torch.zeros_like(out["b_hat"])).item() == pytest.approx(1.0, abs=1e-6)
+    shown = term(tex.clone()).item()
+    assert shown < 0.05  # c = 0.02 against the noise's edges: tanh of many c's is ~1
+    assert term(tex.clone(), a_ref=torch.zeros_like(out["x_a"][:, n:])).item() == pytest.approx(shown, abs=1e-6)
+    # the texture as the target carries no gradient: with b_hat detached nothing is left to train
+    assert not term(out["b_hat"].detach()).requires_grad
+    term(out["b_hat"]).backward()
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in trainer.gen.translator.dec_b.parameters())
+
+
 def test_mixed_precision_path_on_cpu(inputs, tmp_path, monkeypatch):
     """The CUDA path (bf16 autocast, channels-last images and weights), run on the CPU: losses
     finite and within bf16 rounding of the fp32 step, the networks computing in bf16, the

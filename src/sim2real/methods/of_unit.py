@@ -171,6 +171,7 @@ class OfUnit(Ours):
         return out
 
     target_grad = True  # x_a's extra channels are w(b_hat_prev), computed without gradient: nothing to detach
+    tex_edges = 0.0  # no texture whose edges the frames could keep
 
     def gen_losses(self, dis: DisStage, batch: Batch, out: Out, step: int) -> dict[str, torch.Tensor]:
         """Ours' translation terms and ``vc`` = masked L1(b̂_t, w_t(b̂_{t-1})) (module docstring)."""

@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from sim2real.config import MethodConfig, TextureConfig, register_method_config
-from sim2real.losses import l1, ms_ssim_loss, structure_ab_loss, view_consistency, warp_backward
+from sim2real.losses import edge_recall_loss, l1, ms_ssim_loss, structure_ab_loss, view_consistency, warp_backward
 from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, rgb
 from sim2real.methods.common import DisStage, adv_terms, dis_terms, pad_apply, translator_terms, translator_weights
 
@@ -43,6 +43,11 @@ class OursConfig(MethodConfig):
     """Whether x_a as the target of rec_a and cyc_a carries gradient into the texture (the authors'
     release: it does, so the texture is also pulled towards what the translator reconstructs of it).
     False detaches the targets: the texture learns only through the translator's outputs."""
+    tex_edges: float = 0.0
+    """Weight of the edge recall of b_hat at the edges of the projected texture a_tex (detached; the
+    ``loss.edge_*`` settings): wherever the texture has an edge, its own pattern fixed to the surface,
+    the frame must have one too. Not in the paper: a lever of the detail study, because nothing else
+    asks the frames' grey detail to stay put (the view-consistency angle ignores brightness). 0: off."""
 
     @classmethod
     def for_size(cls, size: str) -> "OursConfig":
@@ -69,6 +74,8 @@ class OursConfig(MethodConfig):
              t.init_noise_sigma)
         need(math.isfinite(self.vc) and self.vc >= 0, "method.vc", "a finite weight >= 0", self.vc)
         need(self.vc_start >= 0, "method.vc_start", ">= 0", self.vc_start)
+        need(math.isfinite(self.tex_edges) and self.tex_edges >= 0, "method.tex_edges", "a finite weight >= 0",
+             self.tex_edges)
         need(self.vc_kind in VC_KINDS, "method.vc_kind", "one of " + ", ".join(VC_KINDS), self.vc_kind)
 
 
@@ -97,6 +104,11 @@ class Ours(Method):
     def target_grad(self) -> bool:
         """Whether rec_a's and cyc_a's target x_a carries gradient (``method.target_grad``)."""
         return self.mc.target_grad
+
+    @property
+    def tex_edges(self) -> float:
+        """Weight of the texture's edge recall (``method.tex_edges``); 0 without a texture."""
+        return self.mc.tex_edges if self.features else 0.0
 
     @property
     def data(self) -> str:
@@ -145,6 +157,7 @@ class Ours(Method):
     def loss_weights(self, step: int) -> dict[str, float]:
         w = translator_weights(self.cfg)
         w["vc"] = self.vc_weight(step)
+        w["tex_edges"] = self.tex_edges
         return w
 
     def schedule_state(self, step: int) -> dict:
@@ -203,6 +216,10 @@ class Ours(Method):
             losses["ssim_ab"] = structure_ab_loss(f["x_a"][:, n:], f["b_hat"], L)
         if L.ssim_ba:
             losses["ssim_ba"] = ms_ssim_loss(f["x_b"], f["a_hat"][:, n:], L.ssim_win, L.ssim_scales)
+        if self.tex_edges:
+            tex = f["x_a"][:, :n].detach()
+            tex = tex if n == 3 else tex.mean(1, keepdim=True).expand(-1, 3, -1, -1)  # grey() of equal channels: the mean
+            losses["tex_edges"] = edge_recall_loss(tex, f["b_hat"], L.edge_contrast, L.edge_sigma, L.edge_power)
         if "b_hat_j_warped" in out:
             losses["vc"] = view_consistency(self.mc.vc_kind, f["b_hat"], out["b_hat_j_warped"], out["vc_mask"])
         return losses
