@@ -11,6 +11,8 @@ value of this section, not a separate code path:
 One iteration (``step``): view i's texture is projected (``a_tex = tanh(T(s))``), domain A is
 ``x_a = cat(a_tex, a_ref)``; every translation of MUNIT's ``gen_update`` is computed once;
 view j is translated without gradient and warped into view i for L_vc once its weight is on.
+Beyond the paper, ``tex_edges`` (the CPU preset's, with a noisy texture start) asks b_hat for an
+edge wherever a_tex has one, so that the frames' detail stays on the surface (docs/detail_study.md).
 """
 
 from __future__ import annotations
