@@ -2,8 +2,9 @@
 (detail study, issue "Detail that stays"); prints JSON.
 
 The "oracle" video of a texture start: the texture (flat class colours plus band-limited noise,
-``method.texture.init_noise`` / ``init_noise_sigma``) projected into every frame of the study's test
-path exactly as the translator's input a_tex is, and shown with a_ref's shading::
+``method.texture.init_noise`` / ``init_noise_sigma`` / ``init_noise_shape``) projected into every
+frame of the study's test path exactly as the translator's input a_tex is, and shown with a_ref's
+shading::
 
     frame = (a_tex + 1) / 2 * a_ref / albedo(class)        (background black)
 
@@ -13,7 +14,7 @@ real domain with one appearance) and a_ref's on the same path. ``grad`` is the f
 absolute grey difference between neighbouring pixels (0-255 scale).
 
 Usage (the study's data folder, made by benchmarks/detail_study.py):
-  python benchmarks/texture_oracle.py --data D [--starts 1.5:1.0 3:1.0 6:1.0 3:0.5] [--size 256]
+  python benchmarks/texture_oracle.py --data D [--starts 1.5:1.0 3:1.0 6:1.0 3:0.5 4:1.0:lines] [--size 256]
 """
 
 from __future__ import annotations
@@ -42,8 +43,9 @@ def _grad(frames) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, help="the detail study's data folder (scenes, trajectory.txt)")
-    ap.add_argument("--starts", nargs="*", default=["1.5:1.0", "3:1.0", "6:1.0", "3:0.5"], metavar="SIGMA:AMPLITUDE",
-                    help="noise blur (texels) and amplitude (before the tanh) of each texture start")
+    ap.add_argument("--starts", nargs="*", default=["1.5:1.0", "3:1.0", "6:1.0", "3:0.5"], metavar="SIGMA:AMPLITUDE[:SHAPE]",
+                    help="noise blur (texels), amplitude (before the tanh) and shape (blobs or lines; default blobs) "
+                         "of each texture start")
     ap.add_argument("--size", type=int, default=256, help="texture size (the CPU preset's: 256)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
@@ -72,10 +74,12 @@ def main() -> None:
     anchors = Anchors(scene)
     videos = {"ceiling": [anchors.ceiling(g, t) for t, g in enumerate(gbufs)], "a_ref": [to_uint8(a) for a in a_ref]}
     for start in args.starts:
-        sigma, amp = (float(x) for x in start.split(":"))
+        sigma, amp, shape = (start.split(":") + ["blobs"])[:3]
+        sigma, amp = float(sigma), float(amp)
         torch.manual_seed(args.seed)
         tex = NeuralTexture(len(scene.classes), scene.bounds(), albedo,
-                            TextureConfig(size=args.size, features=3, init_noise=amp, init_noise_sigma=sigma))
+                            TextureConfig(size=args.size, features=3, init_noise=amp, init_noise_sigma=sigma,
+                                          init_noise_shape=shape))
         frames = []
         with torch.no_grad():
             for g, a in zip(gbufs, a_ref):
@@ -83,7 +87,7 @@ def main() -> None:
                         torch.as_tensor(g.normal)[None].float())[0].permute(1, 2, 0).numpy()
                 shade = np.where(g.mask[..., None], a / np.clip(albedo[np.clip(g.object_id, 0, None)], 1e-3, None), 0.0)
                 frames.append(to_uint8(np.clip((t + 1) / 2 * shade, 0, 1)))
-        videos[f"noise sigma {sigma:g} amplitude {amp:g}"] = frames
+        videos[f"noise {shape} sigma {sigma:g} amplitude {amp:g}"] = frames
         print(f"{start} done", file=sys.stderr)
     out = {"data": args.data, "frames": len(gbufs), "size": [gbufs[0].height, gbufs[0].width], "texture_size": args.size,
            "videos": {name: {**_score(f, points, masks, orb), "grad": _grad(f)} for name, f in videos.items()}}

@@ -119,6 +119,28 @@ def test_init_noise_is_band_limited_with_the_given_std():
         assert r == pytest.approx(math.exp(-1 / 9), abs=0.03)
 
 
+def test_init_noise_lines_darken_every_feature_alike_along_thin_curves():
+    from sim2real.texture.neural_texture import LINE_WIDTH
+
+    boxes = torch.tensor([[[0.0, 0, 0], [10, 10, 10]]], dtype=torch.float64)
+    cfg = TextureConfig(size=64, features=3, init_noise=0.8, init_noise_sigma=3, init_noise_shape="lines")
+    torch.manual_seed(0)
+    tex = NeuralTexture(1, boxes, [[0.3, 0.6, 0.9]], cfg)
+    flat = NeuralTexture(1, boxes, [[0.3, 0.6, 0.9]], TextureConfig(size=64, features=3))
+    d = (tex.texture - flat.texture).detach().double()
+    # one field per plane, shared by the features: the same darkening in every channel
+    # (up to float32 rounding of the sum with each channel's own flat value)
+    for c in (1, 2):
+        torch.testing.assert_close(d[..., c], d[..., 0], rtol=0, atol=1e-6)
+    # -0.8 exp(-n^2 / (2 w^2)) of a unit normal n: in [-0.8, 0], reaching -0.8 near the zero crossings
+    assert d.max().item() <= 1e-6 and d.min().item() >= -0.8 - 1e-6 and d.min().item() < -0.79
+    # darker than half the amplitude where |n| < w sqrt(2 ln 2): P = erf(w sqrt(ln 2)) = 0.112 at w 0.12
+    share = (d[..., 0] < -0.4).double().mean().item()
+    assert share == pytest.approx(math.erf(LINE_WIDTH * math.sqrt(math.log(2))), abs=0.02)
+    with pytest.raises(ValueError, match="init_noise_shape"):
+        NeuralTexture(1, boxes, None, TextureConfig(size=8, init_noise=1.0, init_noise_shape="dots"))
+
+
 def test_background_is_zero_and_garbage_there_is_ignored():
     boxes, oid, pts, n = _scene(seed=3)
     bg = oid < 0

@@ -61,6 +61,7 @@ def test_unknown_and_malformed_keys(capsys, tmp_path, inputs):
     ("method.texture.tanh=before", ["'method.texture.tanh'", "interpolated, texel"]),
     ("method.texture.init_noise=-0.5", ["'method.texture.init_noise'", ">= 0"]),
     ("method.texture.init_noise_sigma=0", ["'method.texture.init_noise_sigma'", "> 0"]),
+    ("method.texture.init_noise_shape=dots", ["'method.texture.init_noise_shape'", "blobs, lines"]),
     ("method.vc=-1", ["'method.vc'", ">= 0"]),
     ("method.vc_start=-1", ["'method.vc_start'", ">= 0"]),
     ("generator.filters=0", ["'generator.filters'"]),

@@ -40,6 +40,10 @@ class TextureConfig:
     flat start)."""
     init_noise_sigma: float = 1.5
     """Band limit of that noise: white noise blurred with a Gaussian of this many texels per plane."""
+    init_noise_shape: str = "blobs"
+    """'blobs': the band-limited noise itself, per feature. 'lines': a network of thin curves, the
+    zero crossings of that noise (one field per plane, shared by the features), lowering every
+    feature by up to ``init_noise``: dark, branching, vessel-like lines fixed to the surface."""
 
 
 @dataclass

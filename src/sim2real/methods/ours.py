@@ -63,13 +63,15 @@ class OursConfig(MethodConfig):
         import math
 
         from sim2real.losses.consistency import VC_KINDS
-        from sim2real.texture.neural_texture import MAPPINGS, TANH_MODES
+        from sim2real.texture.neural_texture import MAPPINGS, NOISE_SHAPES, TANH_MODES
 
         t = self.texture
         need(t.size >= 1, "method.texture.size", ">= 1", t.size)
         need(t.features >= 0, "method.texture.features", ">= 0 (0: no texture)", t.features)
         need(t.mapping in MAPPINGS, "method.texture.mapping", "one of " + ", ".join(MAPPINGS), t.mapping)
         need(t.tanh in TANH_MODES, "method.texture.tanh", "one of " + ", ".join(TANH_MODES), t.tanh)
+        need(t.init_noise_shape in NOISE_SHAPES, "method.texture.init_noise_shape", "one of " + ", ".join(NOISE_SHAPES),
+             t.init_noise_shape)
         need(math.isfinite(t.init_noise) and t.init_noise >= 0, "method.texture.init_noise", "finite and >= 0",
              t.init_noise)
         need(math.isfinite(t.init_noise_sigma) and t.init_noise_sigma > 0, "method.texture.init_noise_sigma", "> 0",

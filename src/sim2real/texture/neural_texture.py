@@ -68,6 +68,11 @@ PLANES = ("+x", "-x", "+y", "-y", "+z", "-z")
 """Plane order along dimension 1 of the texture."""
 MAPPINGS = ("box", "cube")
 """``texture.mapping`` options (see the module docstring)."""
+NOISE_SHAPES = ("blobs", "lines")
+"""``texture.init_noise_shape`` options (see :meth:`NeuralTexture.add_noise`)."""
+LINE_WIDTH = 0.12
+"""Half-width of a 'lines' curve in units of the unit-variance noise: a texel darkens by
+exp(-n^2 / (2 LINE_WIDTH^2)), so a curve is about 2.4 LINE_WIDTH sigma texels wide (FWHM)."""
 TANH_MODES = ("interpolated", "texel")
 """``texture.tanh`` options: tanh after the interpolation (ours) or of every texel (the release)."""
 IN_PLANE_AXES = ((1, 2), (0, 2), (0, 1))
@@ -122,7 +127,7 @@ class NeuralTexture(nn.Module):
         if colours is not None:
             self.set_colours(colours)
         if cfg.init_noise > 0:
-            self.add_noise(cfg.init_noise, cfg.init_noise_sigma)
+            self.add_noise(cfg.init_noise, cfg.init_noise_sigma, shape=cfg.init_noise_shape)
 
     @classmethod
     def from_colours(cls, bboxes, colours, cfg: TextureConfig | None = None) -> "NeuralTexture":
@@ -141,12 +146,21 @@ class NeuralTexture(nn.Module):
         self.texture.copy_(pre.to(self.texture)[:, None, None, None, :].expand_as(self.texture))
 
     @torch.no_grad()
-    def add_noise(self, std: float, sigma: float, generator: torch.Generator | None = None) -> None:
-        """Add band-limited noise to every plane of every feature: white noise blurred with a
-        Gaussian of ``sigma`` texels (separable, reflect padding), rescaled to standard deviation
-        ``std``. Neighbouring texels then correlate by exp(-1 / (4 sigma^2)) (0.895 at sigma 1.5)."""
+    def add_noise(self, std: float, sigma: float, generator: torch.Generator | None = None,
+                  shape: str = "blobs") -> None:
+        """Add band-limited noise to every plane: white noise blurred with a Gaussian of ``sigma``
+        texels (separable, reflect padding), rescaled to unit standard deviation: ``n``.
+        Neighbouring texels then correlate by exp(-1 / (4 sigma^2)) (0.895 at sigma 1.5).
+
+        ``shape`` 'blobs': one ``n`` per feature, added times ``std``. 'lines': one ``n`` per plane,
+        shared by the features, and every feature is lowered by ``std * exp(-n^2 / (2 w^2))``
+        (w = :data:`LINE_WIDTH`): dark curves along the zero crossings of ``n``, which branch and
+        join like a vessel network, about 2.4 w sigma texels wide and a few sigma apart."""
+        if shape not in NOISE_SHAPES:
+            raise ValueError(f"texture.init_noise_shape must be one of {NOISE_SHAPES}, got {shape!r}")
         O, P, S, _, N = self.texture.shape
-        noise = torch.randn((O * P * N, 1, S, S), generator=generator)
+        fields = N if shape == "blobs" else 1
+        noise = torch.randn((O * P * fields, 1, S, S), generator=generator)
         r = max(1, math.ceil(3 * sigma))
         x = torch.arange(-r, r + 1, dtype=torch.float32)
         k = torch.exp(-0.5 * (x / sigma) ** 2)
@@ -157,8 +171,11 @@ class NeuralTexture(nn.Module):
             kk = k[r - pad : r + pad + 1]
             noise = torch.nn.functional.conv2d(noise, kk.view(1, 1, 1, -1))
             noise = torch.nn.functional.conv2d(noise, kk.view(1, 1, -1, 1))
-        noise = noise * (std / noise.std().clamp_min(1e-12))
-        self.texture.add_(noise.reshape(O, P, N, S, S).permute(0, 1, 3, 4, 2).to(self.texture))
+        noise = noise / noise.std().clamp_min(1e-12)
+        if shape == "lines":
+            noise = -torch.exp(-0.5 * (noise / LINE_WIDTH) ** 2)
+        noise = (std * noise).reshape(O, P, fields, S, S).permute(0, 1, 3, 4, 2)
+        self.texture.add_(noise.expand(O, P, S, S, N).to(self.texture))
 
     def plane_coords(self, object_id: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
         """Normalised coordinates ``c`` (..., 3): c[..., k] is the position along world axis k in
