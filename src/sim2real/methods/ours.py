@@ -17,7 +17,7 @@ edge wherever a_tex has one, so that the frames' detail stays on the surface (do
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import nn
@@ -250,6 +250,7 @@ class Ours(Method):
         from sim2real.texture.neural_texture import NeuralTexture
 
         gen_state = state["gen"]
+        shell = replace(self.mc.texture, init_noise=0.0)  # its texels come from the checkpoint
         keys, textures, objects = [], nn.ModuleDict(), []
         for s in state["scenes"]:
             keys.append(s["key"])
@@ -259,7 +260,7 @@ class Ours(Method):
                 if tex is None:
                     raise UserError(f"checkpoint {where} has no texture for scene '{s['name']}'")
                 n_obj = int(tex.shape[0])
-                textures[s["key"]] = NeuralTexture(n_obj, np.zeros((n_obj, 2, 3), np.float32), None, self.mc.texture)
+                textures[s["key"]] = NeuralTexture(n_obj, np.zeros((n_obj, 2, 3), np.float32), None, shell)
             objects.append(n_obj)
         return self._stage(keys, textures), objects
 
