@@ -43,7 +43,7 @@ class TextureConfig:
     init_noise_shape: str = "blobs"
     """'blobs': the band-limited noise itself, per feature. 'lines': a network of thin curves, the
     zero crossings of that noise (one field per plane, shared by the features), lowering every
-    feature by up to ``init_noise``: dark, branching, vessel-like lines fixed to the surface."""
+    feature by up to ``init_noise``: dark, winding, vessel-like lines fixed to the surface."""
 
 
 @dataclass

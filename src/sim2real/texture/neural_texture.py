@@ -154,8 +154,8 @@ class NeuralTexture(nn.Module):
 
         ``shape`` 'blobs': one ``n`` per feature, added times ``std``. 'lines': one ``n`` per plane,
         shared by the features, and every feature is lowered by ``std * exp(-n^2 / (2 w^2))``
-        (w = :data:`LINE_WIDTH`): dark curves along the zero crossings of ``n``, which branch and
-        join like a vessel network, about 2.4 w sigma texels wide and a few sigma apart."""
+        (w = :data:`LINE_WIDTH`): dark curves along the zero crossings of ``n``, winding loops that
+        look like a net of septa or vessels, about 2.4 w sigma texels wide and a few sigma apart."""
         if shape not in NOISE_SHAPES:
             raise ValueError(f"texture.init_noise_shape must be one of {NOISE_SHAPES}, got {shape!r}")
         O, P, S, _, N = self.texture.shape
