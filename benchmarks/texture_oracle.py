@@ -2,7 +2,8 @@
 (detail study, issue "Detail that stays"); prints JSON.
 
 The "oracle" video of a texture start: the texture (flat class colours plus band-limited noise,
-``method.texture.init_noise`` / ``init_noise_sigma`` / ``init_noise_shape``) projected into every
+``method.texture.init_noise`` / ``init_noise_sigma``, or the line net of ``init_lines`` /
+``init_lines_sigma``) projected into every
 frame of the study's test path exactly as the translator's input a_tex is, and shown with a_ref's
 shading::
 
@@ -77,9 +78,11 @@ def main() -> None:
         sigma, amp, shape = (start.split(":") + ["blobs"])[:3]
         sigma, amp = float(sigma), float(amp)
         torch.manual_seed(args.seed)
-        tex = NeuralTexture(len(scene.classes), scene.bounds(), albedo,
-                            TextureConfig(size=args.size, features=3, init_noise=amp, init_noise_sigma=sigma,
-                                          init_noise_shape=shape))
+        if shape not in ("blobs", "lines"):
+            sys.exit(f"texture_oracle: error: --starts {start}: the shape must be blobs or lines")
+        kw = dict(init_noise=amp, init_noise_sigma=sigma) if shape == "blobs" else \
+            dict(init_lines=amp, init_lines_sigma=sigma)
+        tex = NeuralTexture(len(scene.classes), scene.bounds(), albedo, TextureConfig(size=args.size, features=3, **kw))
         frames = []
         with torch.no_grad():
             for g, a in zip(gbufs, a_ref):

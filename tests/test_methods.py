@@ -55,6 +55,19 @@ def test_format_1_configs_are_migrated():
         from_dict(TrainConfig, {**to_dict(preset("tiny")), "method": {"name": "cyclegan"}})
 
 
+def test_the_former_noise_shape_key_is_migrated():
+    d = to_dict(preset("tiny"))
+    d["method"]["texture"].update(init_noise=0.7, init_noise_sigma=4.0, init_noise_shape="lines")
+    t = from_dict(TrainConfig, d).method.texture
+    assert (t.init_noise, t.init_lines, t.init_lines_sigma) == (0.0, 0.7, 4.0)
+    d["method"]["texture"].update(init_noise=0.7, init_noise_sigma=4.0, init_noise_shape="blobs")
+    t = from_dict(TrainConfig, d).method.texture
+    assert (t.init_noise, t.init_noise_sigma, t.init_lines) == (0.7, 4.0, 0.0)
+    d["method"]["texture"]["init_noise_shape"] = "dots"
+    with pytest.raises(UserError, match="blobs or lines, got 'dots'"):
+        from_dict(TrainConfig, d)
+
+
 # --- a method the project does not know: the trainer and inference must run it unchanged ---------
 
 

@@ -123,7 +123,7 @@ def test_init_noise_lines_darken_every_feature_alike_along_thin_curves():
     from sim2real.texture.neural_texture import LINE_WIDTH
 
     boxes = torch.tensor([[[0.0, 0, 0], [10, 10, 10]]], dtype=torch.float64)
-    cfg = TextureConfig(size=64, features=3, init_noise=0.8, init_noise_sigma=3, init_noise_shape="lines")
+    cfg = TextureConfig(size=64, features=3, init_lines=0.8, init_lines_sigma=3)
     torch.manual_seed(0)
     tex = NeuralTexture(1, boxes, [[0.3, 0.6, 0.9]], cfg)
     flat = NeuralTexture(1, boxes, [[0.3, 0.6, 0.9]], TextureConfig(size=64, features=3))
@@ -137,8 +137,18 @@ def test_init_noise_lines_darken_every_feature_alike_along_thin_curves():
     # darker than half the amplitude where |n| < w sqrt(2 ln 2): P = erf(w sqrt(ln 2)) = 0.112 at w 0.12
     share = (d[..., 0] < -0.4).double().mean().item()
     assert share == pytest.approx(math.erf(LINE_WIDTH * math.sqrt(math.log(2))), abs=0.02)
-    with pytest.raises(ValueError, match="init_noise_shape"):
-        NeuralTexture(1, boxes, None, TextureConfig(size=8, init_noise=1.0, init_noise_shape="dots"))
+    with pytest.raises(ValueError, match="blobs"):
+        tex.add_noise(1.0, 2.0, shape="dots")
+    # on top of the noise: the blobs' draws come first, then the lines' (one seed, both shapes)
+    torch.manual_seed(0)
+    both = NeuralTexture(1, boxes, [[0.3, 0.6, 0.9]], TextureConfig(size=64, features=3, init_noise=0.5,
+                                                                    init_lines=0.8, init_lines_sigma=3))
+    torch.manual_seed(0)
+    blobs = NeuralTexture(1, boxes, [[0.3, 0.6, 0.9]], TextureConfig(size=64, features=3, init_noise=0.5))
+    lines = (both.texture - blobs.texture).detach().double()
+    assert lines.max().item() <= 1e-6 and lines.min().item() < -0.79
+    for c in (1, 2):
+        torch.testing.assert_close(lines[..., c], lines[..., 0], rtol=0, atol=1e-6)
 
 
 def test_background_is_zero_and_garbage_there_is_ignored():

@@ -40,10 +40,14 @@ class TextureConfig:
     flat start)."""
     init_noise_sigma: float = 1.5
     """Band limit of that noise: white noise blurred with a Gaussian of this many texels per plane."""
-    init_noise_shape: str = "blobs"
-    """'blobs': the band-limited noise itself, per feature. 'lines': a network of thin curves, the
-    zero crossings of that noise (one field per plane, shared by the features), lowering every
-    feature by up to ``init_noise``: dark, winding, vessel-like lines fixed to the surface."""
+    init_lines: float = 0.0
+    """Depth of a net of thin dark curves added to the start (before the tanh): the zero crossings
+    of band-limited noise (one field per plane, shared by the features) lower every feature by up
+    to this much. Winding, vessel- or septa-like lines fixed to the surface, on top of (or, with
+    ``init_noise=0``, instead of) the noise; 0 = none."""
+    init_lines_sigma: float = 4.0
+    """Band limit of the noise whose zero crossings the lines follow (texels): curves a few sigma
+    apart."""
 
 
 @dataclass
@@ -362,10 +366,32 @@ def differences(a: Any, b: Any) -> list[tuple[str, Any, Any]]:
     return [(k, fa.get(k), fb.get(k)) for k in keys if fa.get(k) != fb.get(k)]
 
 
+def _migrate_noise_shape(data: dict) -> dict:
+    """``method.texture.init_noise_shape`` (runs of 2026-12-03, before the line net had keys of its
+    own): 'blobs' is today's ``init_noise``; 'lines' drew the same net as ``init_lines`` with the
+    noise's amplitude and sigma, and no noise."""
+    tex = (data.get("method") or {}).get("texture") if isinstance(data.get("method"), dict) else None
+    if not isinstance(tex, dict) or "init_noise_shape" not in tex:
+        return data
+    data = copy.deepcopy(data)
+    tex = data["method"]["texture"]
+    shape = tex.pop("init_noise_shape")
+    if shape == "lines":
+        tex["init_lines"], tex["init_lines_sigma"] = tex.get("init_noise", 0.0), tex.get("init_noise_sigma", 1.5)
+        tex["init_noise"] = 0.0
+    elif shape != "blobs":
+        raise UserError(f"config key 'method.texture.init_noise_shape' (former) must be blobs or lines, got {shape!r}")
+    return data
+
+
 def migrate(data: dict) -> dict:
-    """A config dict of format 1 (checkpoints before methods had their own section: ``method``
-    a string, ``texture`` top level, ``loss.vc*``) -> today's layout. Newer dicts pass unchanged."""
-    if not isinstance(data, dict) or not isinstance(data.get("method"), str):
+    """An older config dict -> today's layout. Format 1 (checkpoints before methods had their own
+    section: ``method`` a string, ``texture`` top level, ``loss.vc*``), and the former
+    ``init_noise_shape`` key. Newer dicts pass unchanged."""
+    if not isinstance(data, dict):
+        return data
+    data = _migrate_noise_shape(data)
+    if not isinstance(data.get("method"), str):
         return data
     data = copy.deepcopy(data)
     old = data.pop("method")

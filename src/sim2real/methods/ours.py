@@ -63,19 +63,21 @@ class OursConfig(MethodConfig):
         import math
 
         from sim2real.losses.consistency import VC_KINDS
-        from sim2real.texture.neural_texture import MAPPINGS, NOISE_SHAPES, TANH_MODES
+        from sim2real.texture.neural_texture import MAPPINGS, TANH_MODES
 
         t = self.texture
         need(t.size >= 1, "method.texture.size", ">= 1", t.size)
         need(t.features >= 0, "method.texture.features", ">= 0 (0: no texture)", t.features)
         need(t.mapping in MAPPINGS, "method.texture.mapping", "one of " + ", ".join(MAPPINGS), t.mapping)
         need(t.tanh in TANH_MODES, "method.texture.tanh", "one of " + ", ".join(TANH_MODES), t.tanh)
-        need(t.init_noise_shape in NOISE_SHAPES, "method.texture.init_noise_shape", "one of " + ", ".join(NOISE_SHAPES),
-             t.init_noise_shape)
         need(math.isfinite(t.init_noise) and t.init_noise >= 0, "method.texture.init_noise", "finite and >= 0",
              t.init_noise)
         need(math.isfinite(t.init_noise_sigma) and t.init_noise_sigma > 0, "method.texture.init_noise_sigma", "> 0",
              t.init_noise_sigma)
+        need(math.isfinite(t.init_lines) and t.init_lines >= 0, "method.texture.init_lines", "finite and >= 0",
+             t.init_lines)
+        need(math.isfinite(t.init_lines_sigma) and t.init_lines_sigma > 0, "method.texture.init_lines_sigma", "> 0",
+             t.init_lines_sigma)
         need(math.isfinite(self.vc) and self.vc >= 0, "method.vc", "a finite weight >= 0", self.vc)
         need(self.vc_start >= 0, "method.vc_start", ">= 0", self.vc_start)
         need(math.isfinite(self.tex_edges) and self.tex_edges >= 0, "method.tex_edges", "a finite weight >= 0",
@@ -250,7 +252,7 @@ class Ours(Method):
         from sim2real.texture.neural_texture import NeuralTexture
 
         gen_state = state["gen"]
-        shell = replace(self.mc.texture, init_noise=0.0)  # its texels come from the checkpoint
+        shell = replace(self.mc.texture, init_noise=0.0, init_lines=0.0)  # its texels come from the checkpoint
         keys, textures, objects = [], nn.ModuleDict(), []
         for s in state["scenes"]:
             keys.append(s["key"])

@@ -69,7 +69,8 @@ PLANES = ("+x", "-x", "+y", "-y", "+z", "-z")
 MAPPINGS = ("box", "cube")
 """``texture.mapping`` options (see the module docstring)."""
 NOISE_SHAPES = ("blobs", "lines")
-"""``texture.init_noise_shape`` options (see :meth:`NeuralTexture.add_noise`)."""
+"""The shapes of :meth:`NeuralTexture.add_noise` ('blobs': ``texture.init_noise``, 'lines':
+``texture.init_lines``)."""
 LINE_WIDTH = 0.12
 """Half-width of a 'lines' curve in units of the unit-variance noise: a texel darkens by
 exp(-n^2 / (2 LINE_WIDTH^2)), so a curve is about 2.4 LINE_WIDTH sigma texels wide (FWHM)."""
@@ -127,7 +128,9 @@ class NeuralTexture(nn.Module):
         if colours is not None:
             self.set_colours(colours)
         if cfg.init_noise > 0:
-            self.add_noise(cfg.init_noise, cfg.init_noise_sigma, shape=cfg.init_noise_shape)
+            self.add_noise(cfg.init_noise, cfg.init_noise_sigma, shape="blobs")
+        if cfg.init_lines > 0:
+            self.add_noise(cfg.init_lines, cfg.init_lines_sigma, shape="lines")
 
     @classmethod
     def from_colours(cls, bboxes, colours, cfg: TextureConfig | None = None) -> "NeuralTexture":
@@ -157,7 +160,7 @@ class NeuralTexture(nn.Module):
         (w = :data:`LINE_WIDTH`): dark curves along the zero crossings of ``n``, winding loops that
         look like a net of septa or vessels, about 2.4 w sigma texels wide and a few sigma apart."""
         if shape not in NOISE_SHAPES:
-            raise ValueError(f"texture.init_noise_shape must be one of {NOISE_SHAPES}, got {shape!r}")
+            raise ValueError(f"noise shape must be one of {NOISE_SHAPES}, got {shape!r}")
         O, P, S, _, N = self.texture.shape
         fields = N if shape == "blobs" else 1
         noise = torch.randn((O * P * fields, 1, S, S), generator=generator)
