@@ -114,6 +114,7 @@ def pack(run_dir: Path, seed: int, scores: dict, out: Path = HERE, frames: int =
     under ``trained``, how it was trained (kept in the record). Returns the record."""
     import torch
 
+    from sim2real.config import TrainConfig, from_dict, to_dict
     from sim2real.engine.checkpoint import FORMAT as CKPT_FORMAT, find_run_checkpoint, load_checkpoint, save_checkpoint
     from sim2real.fileio import atomic_write_json
     from sim2real.inference.translate import load_run
@@ -124,9 +125,9 @@ def pack(run_dir: Path, seed: int, scores: dict, out: Path = HERE, frames: int =
     src = find_run_checkpoint(run_dir)
     state = load_checkpoint(src)
     scene_dirs = [Path(s["scene_dir"]) for s in state["scenes"]]
-    cfg = state["config"]
+    cfg = to_dict(from_dict(TrainConfig, state["config"]))  # in today's keys (an older run migrates)
     h, w = cfg["data"]["height"], cfg["data"]["width"]
-    shipped = {"format": CKPT_FORMAT, "step": state["step"], "config": state["config"], "method": state["method"],
+    shipped = {"format": CKPT_FORMAT, "step": state["step"], "config": cfg, "method": state["method"],
                "inputs": {"scenes": [s["name"] for s in state["scenes"]], "real": "stand-in real domain"},
                "scenes": [{**s, "scene_dir": None, "views": None} for s in state["scenes"]],
                "gen": _halved(state["gen"]), "dis": _halved(state["dis"]), "world_size": state.get("world_size", 1)}
