@@ -61,7 +61,7 @@ def main() -> None:
     from sim2real.render.reference import class_albedo, reference_rendering, to_uint8
     from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import Trajectory
-    from sim2real.texture.neural_texture import NeuralTexture
+    from sim2real.texture.neural_texture import NOISE_SHAPES, NeuralTexture
 
     info = json.loads((Path(args.data) / "done.json").read_text())
     scene = Scene.load(info["scenes"][0])
@@ -78,8 +78,8 @@ def main() -> None:
         sigma, amp, shape = (start.split(":") + ["blobs"])[:3]
         sigma, amp = float(sigma), float(amp)
         torch.manual_seed(args.seed)
-        if shape not in ("blobs", "lines"):
-            sys.exit(f"texture_oracle: error: --starts {start}: the shape must be blobs or lines")
+        if shape not in NOISE_SHAPES:
+            sys.exit(f"texture_oracle: error: --starts {start}: the shape must be one of {', '.join(NOISE_SHAPES)}")
         kw = dict(init_noise=amp, init_noise_sigma=sigma) if shape == "blobs" else \
             dict(init_lines=amp, init_lines_sigma=sigma)
         tex = NeuralTexture(len(scene.classes), scene.bounds(), albedo, TextureConfig(size=args.size, features=3, **kw))

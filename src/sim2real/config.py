@@ -370,7 +370,8 @@ def _migrate_noise_shape(data: dict) -> dict:
     """``method.texture.init_noise_shape`` (runs of 2026-12-03, before the line net had keys of its
     own): 'blobs' is today's ``init_noise``; 'lines' drew the same net as ``init_lines`` with the
     noise's amplitude and sigma, and no noise."""
-    tex = (data.get("method") or {}).get("texture") if isinstance(data.get("method"), dict) else None
+    method = data.get("method")
+    tex = method.get("texture") if isinstance(method, dict) else None
     if not isinstance(tex, dict) or "init_noise_shape" not in tex:
         return data
     data = copy.deepcopy(data)
