@@ -83,7 +83,8 @@ def test_demo_uses_the_shipped_model_end_to_end(tmp_path):
     assert code == 0
     info = json.loads((out / "demo.json").read_text())
     rec = shipped.load_record()
-    assert info["model"] == "shipped" and info["training_steps"] == rec["steps"]
+    # a model trained in stages counts the steps of all of them; its checkpoint, those of the last
+    assert info["model"] == "shipped" and info["training_steps"] == (rec.get("trained") or {}).get("steps", rec["steps"])
     # the demo's run folder holds the shipped checkpoint, byte for byte
     assert (out / "run" / "checkpoints" / ckpt.LAST).read_bytes() == shipped.model_path().read_bytes()
     metrics = json.loads((out / info["metrics"]).read_text())
@@ -94,6 +95,14 @@ def test_demo_uses_the_shipped_model_end_to_end(tmp_path):
 
     w, h = Image.open(out / info["figure"]).size
     assert 5 * rec["width"] <= w < 5 * rec["width"] + 40 and 3 * rec["height"] <= h < 3 * rec["height"] + 40
+
+
+def test_the_record_line_counts_the_steps_of_every_stage():
+    rec = {"method": "ours", "height": 128, "width": 256, "steps": 2917}
+    assert shipped.record_text(rec) == "ours at 128x256, 2917 training steps"
+    rec["trained"] = {"steps": 8079, "minutes": 213.8, "machine": "one core"}
+    assert shipped.record_text(rec) == ("ours at 128x256, 8079 training steps in all (2917 in its last stage), "
+                                        "213.8 min on one core")
 
 
 def test_demo_with_other_scenes_stops_before_writing_anything(tmp_path, capsys, monkeypatch):

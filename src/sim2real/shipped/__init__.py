@@ -170,4 +170,7 @@ def record_text(record: dict) -> str:
     """One line on what the shipped model is."""
     t = record.get("trained") or {}
     how = f", {t['minutes']:g} min on {t['machine']}" if t.get("minutes") and t.get("machine") else ""
+    if t.get("steps", record["steps"]) != record["steps"]:  # trained in stages: the checkpoint counts the last
+        return (f"{record['method']} at {record['height']}x{record['width']}, {t['steps']} training steps in all "
+                f"({record['steps']} in its last stage){how}")
     return f"{record['method']} at {record['height']}x{record['width']}, {record['steps']} training steps{how}"
