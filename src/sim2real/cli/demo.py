@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
         steps = trainer.step
     else:
         shipped.install_run(out / "run")
-        steps = (record.get("trained") or {}).get("steps", record["steps"])  # all stages
+        steps = shipped.total_steps(record)
         print(f"demo: 3/5 the shipped model ({shipped.record_text(record)}); its scenes' geometry matches", flush=True)
 
     print("demo: 4/5 translating the test trajectory", flush=True)

@@ -166,11 +166,15 @@ def install_run(run_dir: Path, root: Path = HERE) -> Path:
     return dst
 
 
+def total_steps(record: dict) -> int:
+    """Training steps of the shipped model over all its stages (its checkpoint counts the last)."""
+    return (record.get("trained") or {}).get("steps", record["steps"])
+
+
 def record_text(record: dict) -> str:
     """One line on what the shipped model is."""
     t = record.get("trained") or {}
     how = f", {t['minutes']:g} min on {t['machine']}" if t.get("minutes") and t.get("machine") else ""
-    if t.get("steps", record["steps"]) != record["steps"]:  # trained in stages: the checkpoint counts the last
-        return (f"{record['method']} at {record['height']}x{record['width']}, {t['steps']} training steps in all "
-                f"({record['steps']} in its last stage){how}")
-    return f"{record['method']} at {record['height']}x{record['width']}, {record['steps']} training steps{how}"
+    total = total_steps(record)
+    stages = f" in all ({record['steps']} in its last stage)" if total != record["steps"] else ""
+    return f"{record['method']} at {record['height']}x{record['width']}, {total} training steps{stages}{how}"
