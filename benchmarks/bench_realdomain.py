@@ -1,4 +1,4 @@
-"""Throughput of the stand-in real domain (sim2real.render.realdomain, data.realdomain_writer) at 256x512; prints JSON.
+"""Throughput of the stand-in real domain (sim2real.realdomain) at 256x512; prints JSON.
 
 * ``frames_per_s_1proc``: one process, warm (materials built), ray casting + shading + PNG
   writing of image and label, median over frames;
@@ -21,9 +21,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from sim2real.data.realdomain_writer import WorkerScenes, render_job
+from sim2real.realdomain.writer import WorkerScenes, render_job
 from sim2real.pool import WorkerPool
-from sim2real.render import realdomain as rd
+from sim2real import realdomain as rd
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.procedural import generate_scene
 from sim2real.scene.scene import Scene

@@ -122,7 +122,7 @@ def test_dice_is_stable_over_segmenter_seeds_and_cached(demo_scene, tmp_path):
     from sim2real.inference.dice import dice_of, segmenters
     from sim2real.inference.evaluate import EvalSettings, find_real
     from sim2real.inference.realset import fit_image
-    from sim2real.render.realdomain import make_real_domain
+    from sim2real.realdomain import make_real_domain
     from sim2real.scene.trajectory import sample_poses
 
     scene, caster = demo_scene

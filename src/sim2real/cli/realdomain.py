@@ -48,8 +48,8 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sim2real.data.realdomain_writer import make_real_domain
-    from sim2real.render.realdomain import RenderOptions
+    from sim2real.realdomain.writer import make_real_domain
+    from sim2real.realdomain import RenderOptions
 
     options = RenderOptions(mask=args.mask, blur_px=args.blur, noise=args.noise)
     manifest = make_real_domain(

@@ -17,7 +17,7 @@ def make_embedded_data(out: Path, seed: int, scenes: int, real_images: int, heig
     ``sequence_frames`` frames, for the video methods) under ``out/real``, rendered from two scenes
     of other seeds (the domains are unpaired). Returns (simulated scene folders, real folder).
     ``check(scenes)`` sees the simulated scenes before anything is written (it may raise)."""
-    from sim2real.data.realdomain_writer import make_real_domain
+    from sim2real.realdomain.writer import make_real_domain
     from sim2real.scene.procedural import generate_scene
 
     say(f"simulated scenes ({scenes})")

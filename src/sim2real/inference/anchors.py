@@ -2,7 +2,7 @@
 is also computed on, so that each figure of a model stands between what this benchmark calls
 perfect and what it calls broken.
 
-* **Ceiling**: the stand-in real domain (:mod:`sim2real.render.realdomain`) rendered on the
+* **Ceiling**: the stand-in real domain (:mod:`sim2real.realdomain`) rendered on the
   evaluated scene and views with one appearance. Its materials are solid textures, so the video
   is consistent by construction and has the real domain's detail: it is the best video these
   metrics can score here. (When the real folder is the user's own footage, the ceiling still
@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from sim2real.render.gbuffer import GBuffer
-from sim2real.render.realdomain import Appearance, RenderOptions, SceneMaterial, derive_seed, render_frame
+from sim2real.realdomain import Appearance, RenderOptions, SceneMaterial, derive_seed, render_frame
 
 _CEILING, _FLOOR, _NOISE = 31, 32, 33  # seed tags
 
@@ -66,7 +66,7 @@ def stand_in_options(real_root):
     from pathlib import Path
 
     from sim2real.fileio import read_json_or_none
-    from sim2real.render.realdomain import FORMAT
+    from sim2real.realdomain import FORMAT
 
     for d in (Path(real_root), Path(real_root).parent):
         data = read_json_or_none(d / "manifest.json")

@@ -41,7 +41,7 @@ def class_albedo(classes: tuple[str, ...] | list[str]) -> np.ndarray:
 def paper_light_falloff(distance: np.ndarray) -> np.ndarray:
     """The paper's L(d) of a_ref (Eq. 2, authors' constants), ``distance`` Euclidean in mm, clamped
     at 100 mm. Not the stand-in scope's light
-    (:func:`sim2real.render.realdomain.scope_light_falloff`)."""
+    (:func:`sim2real.realdomain.scope_light_falloff`)."""
     d = np.minimum(distance, DISTANCE_CLAMP_MM)
     a, b, c = FALLOFF
     return 1.0 / (a * d * d + b * d + c)

@@ -2,11 +2,11 @@
 
 Appearance is defined in 3D: every material is a solid texture of the surface point in its
 object's local frame (``point - object bounding-box minimum``, mm; see
-:mod:`sim2real.render.solid_texture`), so a point has the same albedo in every view. Materials:
+:mod:`sim2real.realdomain.solid_texture`), so a point has the same albedo in every view. Materials:
 
 * abdominal wall: pinkish white, milky patches and a reddish blush, faint muscle striation
   showing through, branching red vessel trees whose calibres taper from trunks to twigs
-  (:class:`~sim2real.render.solid_texture.VesselTree`) and a faint capillary mesh (edges of
+  (:class:`~sim2real.realdomain.solid_texture.VesselTree`) and a faint capillary mesh (edges of
   domain-warped Voronoi cells); wrapped diffuse for a translucent look;
 * liver: dark red-brown, glossy, fine mottling and a faint lobular (cellular) pattern;
 * fat (and stomach, which the procedural scenes put in the fat object): yellow-orange lobules of
@@ -14,7 +14,7 @@ object's local frame (``point - object bounding-box minimum``, mm; see
 * gallbladder: greenish, glossy, a few vessels; ligament: whitish, fibrous streaks, fat patches.
 
 Each material returns a :class:`Surface` (albedo, bump gradient, gloss); the shading is in
-:mod:`sim2real.render.realdomain.shading`.
+:mod:`sim2real.realdomain.shading`.
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim2real.render.realdomain.appearance import Appearance, derive_seed, srgb_to_linear
-from sim2real.render.solid_texture import (
+from sim2real.realdomain.appearance import Appearance, derive_seed, srgb_to_linear
+from sim2real.realdomain.solid_texture import (
     CellField, Noise, VesselTree, hash_unit, line_profile, smoothstep, surface_samples,
 )
 

@@ -18,8 +18,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from sim2real.render.gbuffer import GBuffer
-from sim2real.render.realdomain.appearance import linear_to_srgb
-from sim2real.render.realdomain.materials import SceneMaterial
+from sim2real.realdomain.appearance import linear_to_srgb
+from sim2real.realdomain.materials import SceneMaterial
 from sim2real.scene.scene import LABEL_BACKGROUND
 
 

@@ -1,9 +1,9 @@
 """The stand-in real domain as a dataset folder: images, palette label PNGs, sequences, manifest.
 
 :func:`make_real_domain` renders random views and smooth sequences of simulated scenes with the
-stand-in renderer (:mod:`sim2real.render.realdomain`) in a process pool
+stand-in renderer (:mod:`sim2real.realdomain`) in a process pool
 (:class:`sim2real.pool.WorkerPool`: one Embree ray caster and the materials per scene and
-worker). Every frame draws its own seeds (:func:`~sim2real.render.realdomain.derive_seed`), so
+worker). Every frame draws its own seeds (:func:`~sim2real.realdomain.derive_seed`), so
 the output does not depend on the number of workers. Layout: docs/realdomain.md.
 
 Label PNGs hold the class index per pixel in :data:`sim2real.scene.scene.CLASSES` order
@@ -21,9 +21,9 @@ from typing import Sequence
 import numpy as np
 
 from sim2real.errors import UserError
-from sim2real.render.realdomain.appearance import Appearance, derive_seed
-from sim2real.render.realdomain.materials import SceneMaterial
-from sim2real.render.realdomain.shading import RenderOptions, render_frame
+from sim2real.realdomain.appearance import Appearance, derive_seed
+from sim2real.realdomain.materials import SceneMaterial
+from sim2real.realdomain.shading import RenderOptions, render_frame
 from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND, LABEL_PALETTE
 
 FORMAT = "sim2real-realdomain/1"
@@ -192,7 +192,7 @@ def make_real_domain(
     pal = {c: list(LABEL_PALETTE[c]) for c in CLASSES}
     manifest = {
         "format": FORMAT,
-        "generator": "sim2real.render.realdomain",
+        "generator": "sim2real.realdomain",
         "seed": int(seed),
         "images": int(images),
         "sequences": int(sequences),
