@@ -86,7 +86,7 @@ def _loader_rate(ds, workers: int, n: int) -> float:
 def main() -> None:
     import torch
 
-    from sim2real.config import preset
+    from sim2real.presets import preset
     from sim2real.data.datasets import TrainPairs, resolve_scenes
     from sim2real.data.real import RealImages
     from sim2real.threads import usable_cores

@@ -1,6 +1,6 @@
 """Every method's cost in one run: training seconds per iteration and translation frames/s; prints JSON.
 
-For each size preset and each method preset (sim2real.methods.METHOD_PRESETS):
+For each size preset and each method preset (sim2real.presets.METHOD_PRESETS):
 
 * ``s_per_iteration``: median of :meth:`Trainer.train_step` on pre-drawn batches of the method's
   own training data (view pairs, single views or triplets; data loading is not timed: it runs in
@@ -64,7 +64,8 @@ def _sync(device) -> None:
 def measure(preset: str, method: str, iters: int, device: str, base: Path, frames: int) -> dict:
     from torch.utils.data import default_collate
 
-    from sim2real.config import override, preset as get_preset
+    from sim2real.config import override
+    from sim2real.presets import preset as get_preset
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.frames import iter_gbuffers
     from sim2real.inference.translate import load_run
@@ -108,7 +109,7 @@ def measure(preset: str, method: str, iters: int, device: str, base: Path, frame
 
 
 def main() -> None:
-    from sim2real.methods import METHOD_PRESETS
+    from sim2real.presets import METHOD_PRESETS
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", default="small,paper")

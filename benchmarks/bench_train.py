@@ -95,7 +95,8 @@ def child(preset: str, impls: list[str], iters: int, base: Path, device_name: st
     import torch
     from torch.utils.data import default_collate
 
-    from sim2real.config import override, preset as get_preset
+    from sim2real.config import override
+    from sim2real.presets import preset as get_preset
     from sim2real.data.datasets import TrainPairs, resolve_scenes
     from sim2real.data.real import RealImages
 

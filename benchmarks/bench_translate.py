@@ -33,7 +33,8 @@ from PIL import Image
 
 
 def make_run(preset: str, scene_dir: Path, real_dir: Path, out: Path, device: str) -> Path:
-    from sim2real.config import override, preset as get_preset
+    from sim2real.config import override
+    from sim2real.presets import preset as get_preset
     from sim2real.engine.trainer import Trainer
 
     cfg = override(get_preset(preset), [f"device={device}", "data.height=256", "data.width=512"])

@@ -1,11 +1,12 @@
-"""The detail study (issue "Detail that stays"): one lever setting, trained from scratch for a fixed
+"""The detail study ("Detail that stays", docs/detail_study.md): one lever setting, trained from scratch for a fixed
 wall-clock budget on the demo's data, scored on the demo's test path; prints one JSON row and
 appends it to ``--rows`` (JSON lines). ``--table ROWS`` prints the markdown table of a rows file.
 
 Every run uses the same embedded data (``make_embedded_data``: seed 0, 2 scenes, the stand-in real
 domain at the training size), the same test trajectory (``make_trajectory`` of the first scene,
 seed 0, the evaluation's default motion budget: no training view lies on it) and the same seeds;
-only the lever's ``--set`` assignments differ from the demo's CPU configuration. ``--data-seed N``
+only the lever's ``--set`` assignments differ from the preset (``--preset``, default ``cpu``: the
+demo's CPU configuration). ``--data-seed N``
 makes the data of other scenes (seeds N, N + 1) in another ``--data`` folder; ``--init-from``
 starts from a trained run or the shipped model instead of from scratch. Give every run
 the same minutes on an otherwise idle machine (the runs are equal in wall-clock, not in steps).
@@ -68,7 +69,7 @@ def _cpu_name() -> str:
 
 
 def _setting(args) -> str:
-    parts = list(args.set)
+    parts = ([] if args.preset == "cpu" else [f"--preset {args.preset}"]) + list(args.set)
     if args.init_from:
         parts.append(f"--init-from {args.init_from}")
     if args.data_seed:
@@ -79,24 +80,24 @@ def _setting(args) -> str:
 def run(args) -> dict:
     import torch
 
-    from sim2real.cli.demo import demo_config
     from sim2real.config import override
+    from sim2real.presets import budgeted
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.evaluate import EvalSettings, evaluate
     from sim2real.threads import usable_cores
 
-    cfg = override(demo_config(None, False, "cpu", args.method), args.set)
+    cfg = override(budgeted(args.preset, args.method, "cpu"), args.set)
     scenes, real, traj = data(Path(args.data), cfg.data.height, cfg.data.width, args.frames, args.data_seed)
     out = Path(args.out) / args.name
     torch.set_num_threads(usable_cores())
     record = out / "study.json"  # the run's minutes so far (a resumed row reports the total)
     before = json.loads(record.read_text())["minutes"] if args.resume else 0.0
     if args.resume:
-        from sim2real.config import TrainConfig, from_dict
+        from sim2real.presets import config_from_dict
         from sim2real.engine.checkpoint import load_checkpoint
 
         last = out / "run" / "checkpoints" / "last.pt"
-        cfg = from_dict(TrainConfig, load_checkpoint(last)["config"])
+        cfg = config_from_dict(load_checkpoint(last)["config"])
         trainer = Trainer(cfg, None, None, out / "run", resume=last, progress=False)
     else:
         from sim2real import shipped
@@ -154,6 +155,7 @@ def main() -> None:
     ap.add_argument("--lever", default="baseline")
     ap.add_argument("--name", help="run folder name (default: the lever)")
     ap.add_argument("--method", default="ours")
+    ap.add_argument("--preset", default="cpu", help="the configuration the lever's --set list changes")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE")
     ap.add_argument("--minutes", type=float, default=30.0)
     ap.add_argument("--resume", action="store_true",

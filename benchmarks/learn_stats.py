@@ -63,11 +63,11 @@ def distance(a: dict, b: dict) -> dict:
 
 def translate(state: dict, batches: list[dict]) -> tuple[torch.Tensor, torch.Tensor]:
     """(b_hat, a_tex) of view i of every batch, with the generator of checkpoint ``state``."""
-    from sim2real.config import TrainConfig, from_dict
+    from sim2real.presets import config_from_dict
     from sim2real.data.datasets import resolve_scenes
     from sim2real.methods import get_method
 
-    cfg = from_dict(TrainConfig, state["config"])
+    cfg = config_from_dict(state["config"])
     method = get_method(cfg)
     sources = resolve_scenes(state["inputs"]["scenes"], cfg.data.height, cfg.data.width)
     gen, _ = method.build(sources)
@@ -105,7 +105,7 @@ def save_textures(state: dict, path: Path) -> list[Path]:
 
 
 def main() -> None:
-    from sim2real.config import TrainConfig, from_dict
+    from sim2real.presets import config_from_dict
     from sim2real.data.datasets import TrainPairs, resolve_scenes
     from sim2real.data.real import RealImages
     from sim2real.engine.checkpoint import load_checkpoint
@@ -119,7 +119,7 @@ def main() -> None:
     ck = Path(args.run) / "checkpoints"
     first = load_checkpoint(ck / "step_0000000.pt")
     latest = load_checkpoint(Path(args.checkpoint) if args.checkpoint else ck / "last.pt")
-    cfg = from_dict(TrainConfig, latest["config"])
+    cfg = config_from_dict(latest["config"])
     sources = resolve_scenes(latest["inputs"]["scenes"], cfg.data.height, cfg.data.width)
     ds = TrainPairs(sources, RealImages(latest["inputs"]["real"], verify=False), cfg.data, seed=EVAL_SEED)
     batches = [default_collate([ds[s]]) for s in range(args.samples)]

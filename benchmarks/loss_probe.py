@@ -1,4 +1,4 @@
-"""What a trained run's own objective charges a perfect video (issue "Detail that stays").
+"""What a trained run's own objective charges a perfect video (the detail study, docs/detail_study.md).
 
 On views of the detail study's test path, score four videos with two terms of the generator's loss
 of the run (the shipped model by default):
@@ -36,7 +36,8 @@ def main() -> None:
     import torch
 
     from sim2real import shipped
-    from sim2real.config import TrainConfig, from_dict, override
+    from sim2real.config import override
+    from sim2real.presets import config_from_dict
     from sim2real.data.real import load_rgb
     from sim2real.data.tensors import view_tensors
     from sim2real.engine.checkpoint import load_checkpoint
@@ -66,7 +67,7 @@ def main() -> None:
         ckpt = shipped.model_path()
         model = load_run(shipped.HERE, device="cpu", checkpoint=ckpt)
     state = load_checkpoint(ckpt)
-    cfg = override(from_dict(TrainConfig, state["config"]), args.set)
+    cfg = override(config_from_dict(state["config"]), args.set)
     dis_b = MsImageDis(3, cfg.discriminator)
     dis_b.load_state_dict({k[len("dis_b."):]: v.float() for k, v in state["dis"].items() if k.startswith("dis_b.")})
     dis_b.eval().requires_grad_(False)

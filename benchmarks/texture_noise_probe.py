@@ -14,8 +14,8 @@ from pathlib import Path
 import torch
 sys.path.insert(0, str(Path(__file__).parent))
 import detail_study
-from sim2real.cli.demo import demo_config
 from sim2real.config import override
+from sim2real.presets import budgeted
 from sim2real.engine.trainer import Trainer
 
 
@@ -31,7 +31,7 @@ ap.add_argument("--steps", type=int, default=120)
 args = ap.parse_args()
 torch.set_num_threads(1)
 for flag in ("true", "false"):
-    cfg = override(demo_config(None, False, "cpu"), [f"method.target_grad={flag}", "method.texture.init_noise=1.0",
+    cfg = override(budgeted("cpu", "ours", "cpu"), [f"method.target_grad={flag}", "method.texture.init_noise=1.0",
                                                       f"iterations={args.steps}", "seed=0"])
     scenes, real, _ = detail_study.data(Path(args.data), cfg.data.height, cfg.data.width, 100)
     tr = Trainer(cfg, [str(s) for s in scenes], str(real / "images"), Path(args.out) / f"target_grad_{flag}", progress=False)

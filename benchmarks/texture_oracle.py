@@ -1,5 +1,5 @@
 """How much consistent detail a neural texture's start noise holds before any translator touches it
-(detail study, issue "Detail that stays"); prints JSON.
+(the detail study, docs/detail_study.md); prints JSON.
 
 The "oracle" video of a texture start: the texture (flat class colours plus band-limited noise,
 ``method.texture.init_noise`` / ``init_noise_sigma``, or the line net of ``init_lines`` /

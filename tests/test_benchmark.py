@@ -10,7 +10,7 @@ import shutil
 import pytest
 
 from sim2real.cli.main import main
-from sim2real.methods import METHOD_PRESETS
+from sim2real.presets import METHOD_PRESETS
 from train_data import real_dir, scene_dir
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -12,9 +12,10 @@ import pytest
 import torch
 import yaml
 
-from sim2real.config import TrainConfig, from_dict, load_yaml, preset, save_yaml, to_dict
+from sim2real.config import override, save_yaml, to_dict
 from sim2real.errors import UserError
-from sim2real.methods import METHOD_PRESETS, get_method, method_config
+from sim2real.methods import get_method
+from sim2real.presets import METHOD_PRESETS, config_from_dict, load_config, method_config, preset
 from toy_methods import ToyConfig, toy_methods  # noqa: F401  (fixture)
 from train_data import resume_run, tiny_config, train_logged
 
@@ -25,7 +26,7 @@ def test_every_preset_round_trips_through_plain_yaml(tmp_path, name):
     save_yaml(cfg, tmp_path / "c.yaml")
     raw = yaml.safe_load((tmp_path / "c.yaml").read_text())  # plain YAML: no Python tags
     assert raw["method"]["name"] == METHOD_PRESETS[name][0]
-    back = load_yaml(tmp_path / "c.yaml")
+    back = load_config(tmp_path / "c.yaml")
     assert back == cfg and type(back.method) is type(cfg.method)
 
 
@@ -44,28 +45,28 @@ def test_format_1_configs_are_migrated():
     old["method"] = "ours_no_vc"  # the layout before methods had a section
     old["texture"] = section["texture"]
     old["loss"].update(vc=20.0, vc_start=5, vc_kind="l1")
-    cfg = from_dict(TrainConfig, old)
+    cfg = config_from_dict(old)
     assert type(cfg.method).name == "ours"
     assert (cfg.method.vc, cfg.method.vc_start, cfg.method.vc_kind) == (0.0, 5, "l1")
     assert cfg.method.texture.size == 64
     old["method"] = "ours_no_tex_vc"
     with pytest.raises(UserError, match="former method 'ours_no_tex_vc'"):
-        from_dict(TrainConfig, old)
+        config_from_dict(old)
     with pytest.raises(UserError, match="unknown method 'cyclegan'"):
-        from_dict(TrainConfig, {**to_dict(preset("tiny")), "method": {"name": "cyclegan"}})
+        config_from_dict({**to_dict(preset("tiny")), "method": {"name": "cyclegan"}})
 
 
 def test_the_former_noise_shape_key_is_migrated():
     d = to_dict(preset("tiny"))
     d["method"]["texture"].update(init_noise=0.7, init_noise_sigma=4.0, init_noise_shape="lines")
-    t = from_dict(TrainConfig, d).method.texture
+    t = config_from_dict(d).method.texture
     assert (t.init_noise, t.init_lines, t.init_lines_sigma) == (0.0, 0.7, 4.0)
     d["method"]["texture"].update(init_noise=0.7, init_noise_sigma=4.0, init_noise_shape="blobs")
-    t = from_dict(TrainConfig, d).method.texture
+    t = config_from_dict(d).method.texture
     assert (t.init_noise, t.init_noise_sigma, t.init_lines) == (0.7, 4.0, 0.0)
     d["method"]["texture"]["init_noise_shape"] = "dots"
     with pytest.raises(UserError, match="blobs or lines, got 'dots'"):
-        from_dict(TrainConfig, d)
+        config_from_dict(d)
 
 
 # --- a method the project does not know: the trainer and inference must run it unchanged ---------
@@ -153,9 +154,14 @@ def test_init_from_carries_the_networks_to_new_scenes(train_inputs, tmp_path, ca
     trainer, _ = train_logged(tiny_config(iterations=2, checkpoint_every=2, image_every=100), scenes, real,
                               tmp_path / "src")
     other = scene_dir(tmp_path, 12)
-    argv = ["train", "--preset", "tiny", "--scenes", str(other), "--real", str(real), "--device", "cpu", "--no-progress",
+    argv = ["train", "--scenes", str(other), "--real", str(real), "--device", "cpu", "--no-progress",
             "--iterations", "1", "--init-from", str(tmp_path / "src")]
     assert main([*argv, "--out", str(tmp_path / "new")]) == 0, capsys.readouterr().err
+    # the source run's configuration, changed only by this command's flags, each printed
+    assert f"--init-from {tmp_path / 'src'}: its configuration, overridden: iterations 2 -> 1, " \
+           "device 'auto' -> 'cpu'" in capsys.readouterr().out
+    assert to_dict(load_config(tmp_path / "new" / "config.yaml")) == to_dict(
+        override(trainer.cfg, ["iterations=1", "device=cpu"]))
     src = load_checkpoint(tmp_path / "src" / "checkpoints" / "last.pt")
     step0 = load_checkpoint(tmp_path / "new" / "checkpoints" / "step_0000000.pt")
     assert step0["step"] == 0 and step0["inputs"]["init_from"].endswith("last.pt")
@@ -171,5 +177,5 @@ def test_init_from_carries_the_networks_to_new_scenes(train_inputs, tmp_path, ca
     err = capsys.readouterr().err
     assert code == 2 and "does not fit this configuration" in err and "weight '" in err
     assert not (tmp_path / "bad").exists()
-    code = main([*argv, "--out", str(tmp_path / "bad"), "--method", "ours_no_tex_vc"])
+    code = main([*argv, "--out", str(tmp_path / "bad"), "--preset", "tiny", "--method", "ours_no_tex_vc"])
     assert code == 2 and "does not fit" in capsys.readouterr().err

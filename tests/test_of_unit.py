@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from sim2real.config import override, preset, validate
+from sim2real.config import override
+from sim2real.presets import preset
+from sim2real.validation import validate
 from sim2real.errors import UserError
 from sim2real.methods import get_method
 from train_data import tiny_config
@@ -213,7 +215,7 @@ def _train(tmp_path, name, inputs, iterations, **changes):
 
 
 def test_trains_resumes_and_translates_a_six_frame_sequence(video_train_inputs, tmp_path, procedural_caster):
-    from sim2real.config import TrainConfig, from_dict
+    from sim2real.presets import config_from_dict
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.translate import load_run
@@ -228,7 +230,7 @@ def test_trains_resumes_and_translates_a_six_frame_sequence(video_train_inputs, 
     assert state["method"] == "of_unit" and state["step"] == 2
     assert not any(k.startswith("textures.") for k in state["gen"])
     assert len(list((run / "samples").glob("*.png"))) == 2
-    cfg = from_dict(TrainConfig, state["config"])
+    cfg = config_from_dict(state["config"])
     cfg.iterations = 4
     resumed = Trainer(cfg, None, None, run, resume=run / "checkpoints" / "last.pt", progress=False)
     assert resumed.step == 2

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from sim2real.config import preset
+from sim2real.presets import preset
 from sim2real.inference.evaluate import EvalSettings, evaluate
 from toy_methods import DriftConfig, ToyConfig, toy_methods  # noqa: F401  (fixture)
 from train_data import real_dir, scene_dir

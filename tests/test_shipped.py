@@ -6,12 +6,15 @@ import json
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from sim2real import shipped
 from sim2real.cli.main import main
+from sim2real.config import differences, override, to_dict
 from sim2real.engine import checkpoint as ckpt
 from sim2real.errors import UserError
 from sim2real.inference.translate import load_run
+from sim2real.presets import config_from_dict, load_config, preset
 from sim2real.scene.procedural import generate_scene
 
 
@@ -131,6 +134,30 @@ def test_demo_without_train_refuses_training_flags_and_other_scenes(tmp_path, ca
     assert not (tmp_path / "out").exists()
 
 
+def test_the_shipped_config_is_the_cpu_lines_preset_and_the_checkpoints():
+    """``demo_model.yaml`` equals ``--preset cpu-lines`` key by key, and the configuration inside
+    the checkpoint differs from it only where and how long the run went (``RUN_KEYS``)."""
+    yaml_cfg = yaml.safe_load(shipped.config_path().read_text())
+    assert yaml_cfg == to_dict(preset("cpu-lines"))
+    inside = ckpt.load_checkpoint(shipped.model_path())["config"]
+    differ = differences(config_from_dict(inside), config_from_dict(yaml_cfg))
+    assert {k for k, _, _ in differ} <= set(shipped.RUN_KEYS), differ
+    # the recipe keys that make it the line-net stage, read from the checkpoint itself
+    assert inside["method"]["texture"]["init_lines"] == 1.0 and inside["method"]["tex_edges"] == 3.0
+    assert inside["loss"]["edge_contrast"] == 0.08 and inside["generator"]["filters"] == 16
+    assert shipped.load_record()["preset"] == "cpu-lines"
+
+
+def test_packing_a_run_of_another_recipe_is_refused(tmp_path):
+    """``pack`` writes the preset's YAML only for a run trained with it."""
+    other = to_dict(override(preset("cpu-lines"), ["loss.edge_contrast=0.02", "device=cpu"]))
+    with pytest.raises(UserError, match="differs in loss.edge_contrast$"):
+        shipped.write_config(other, "cpu-lines", tmp_path)
+    assert not (tmp_path / shipped.CONFIG).exists()
+    shipped.write_config(to_dict(override(preset("cpu-lines"), ["device=cpu", "iterations=7"])), "cpu-lines", tmp_path)
+    assert yaml.safe_load((tmp_path / shipped.CONFIG).read_text()) == to_dict(preset("cpu-lines"))
+
+
 def test_resuming_the_shipped_checkpoint_is_refused(tmp_path, capsys):
     run = tmp_path / "run"
     shipped.install_run(run)
@@ -141,12 +168,18 @@ def test_resuming_the_shipped_checkpoint_is_refused(tmp_path, capsys):
 
 def test_init_from_shipped_starts_a_new_scene_from_the_shipped_networks(train_inputs, tmp_path, capsys):
     """``sim2real train --init-from shipped``: the shipped translator and discriminators (fp32),
-    fresh textures for the user's own scene."""
+    fresh textures for the user's own scene, and the shipped configuration (preset cpu-lines)
+    except the keys the command overrides, each printed."""
     scene, real = train_inputs
-    code = main(["train", "--preset", "small", "--set", "generator.filters=16", "discriminator.filters=16",
-                 "data.workers=0", "--scenes", str(scene), "--real", str(real), "--device", "cpu", "--no-progress",
-                 "--iterations", "1", "--init-from", "shipped", "--out", str(tmp_path / "new")])
-    assert code == 0, capsys.readouterr().err
+    code = main(["train", "--set", "data.workers=0", "--scenes", str(scene), "--real", str(real), "--device", "cpu",
+                 "--no-progress", "--iterations", "1", "--init-from", "shipped", "--out", str(tmp_path / "new")])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    (line,) = [s for s in out.splitlines() if s.startswith("--init-from")]
+    assert line == "--init-from shipped: its configuration, overridden: iterations 20000 -> 1, device 'auto' -> 'cpu', " \
+                   "data.workers -1 -> 0", line
+    written = load_config(tmp_path / "new" / "config.yaml")
+    assert {k for k, _, _ in differences(preset("cpu-lines"), written)} == {"device", "iterations", "data.workers"}
     src = ckpt.load_checkpoint(shipped.model_path())
     step0 = ckpt.load_checkpoint(tmp_path / "new" / "checkpoints" / ckpt.step_name(0))
     assert step0["inputs"]["init_from"] == str(shipped.model_path())

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from sim2real.config import GeneratorConfig, validate
+from sim2real.config import GeneratorConfig
+from sim2real.validation import validate
 from sim2real.errors import UserError
 from sim2real.methods import get_method
 from sim2real.models.style import MLP, AdaIN, AdaINDecoder, StyleEncoder

@@ -7,7 +7,8 @@ import pytest
 import torch
 from scipy import ndimage
 
-from sim2real.config import LossConfig, TrainConfig, override, validate
+from sim2real.config import LossConfig, TrainConfig, override
+from sim2real.validation import validate
 from sim2real.errors import UserError
 from sim2real.losses import edge_recall_loss, ms_ssim_loss, structure_ab_loss
 

@@ -13,7 +13,7 @@ from torch.utils.data import default_collate
 
 from sim2real.data.datasets import PAIR_TRIES, TrainPairs, resolve_scenes
 from sim2real.data.real import RealImages, random_resized_crop, to_rgb
-from sim2real.methods import METHOD_PRESETS, get_method
+from sim2real.presets import METHOD_PRESETS
 from sim2real.engine.trainer import Trainer
 from sim2real.errors import UserError
 from sim2real.render.gbuffer import GBuffer

@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from sim2real.cli.main import main
-from sim2real.config import preset
+from sim2real.presets import preset
 from sim2real.engine.checkpoint import load_checkpoint
 from sim2real.engine.runlock import LOCK_NAME
 

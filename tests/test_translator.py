@@ -6,8 +6,9 @@ import pytest
 import torch
 from torch import nn
 
-from sim2real.config import DiscriminatorConfig, GeneratorConfig, TrainConfig, preset
-from sim2real.models import MsImageDis, Translator, build_models
+from sim2real.config import DiscriminatorConfig, GeneratorConfig, TrainConfig
+from sim2real.presets import preset
+from sim2real.models import MsImageDis, Translator
 import torch.nn.functional as F
 
 from sim2real.models.layers import LayerNorm, UpConv2dBlock
@@ -120,16 +121,22 @@ def test_discriminator_first_scale_sees_full_resolution_input():
     torch.testing.assert_close(outs[1], dis.cnns[1](pooled))
 
 
+def build_models(cfg: TrainConfig):
+    """The translator and D_A, D_B of ``cfg``'s ``ours`` section, as the method builds them."""
+    n = cfg.method.texture.features
+    return Translator(n, cfg.generator), MsImageDis(n + 3, cfg.discriminator), MsImageDis(3, cfg.discriminator)
+
+
 def test_initialisation_follows_release():
     torch.manual_seed(0)
-    models = build_models(preset("paper"))
-    conv = models.translator.enc_a.model[3].body[0].conv  # 256 -> 256, 3x3
+    translator, dis_a, dis_b = build_models(preset("paper"))
+    conv = translator.enc_a.model[3].body[0].conv  # 256 -> 256, 3x3
     assert abs(conv.weight.std().item() - math.sqrt(2 / (256 * 9))) < 0.02 * math.sqrt(2 / (256 * 9))
     assert conv.bias.abs().max() == 0
-    dconv = models.dis_b.cnns[0][2].conv  # 128 -> 256, 4x4
+    dconv = dis_b.cnns[0][2].conv  # 128 -> 256, 4x4
     assert abs(dconv.weight.std().item() - 0.02) < 0.001 and abs(dconv.weight.mean().item()) < 0.001
-    assert models.dis_a.cnns[0][0].conv.in_channels == preset("paper").method.texture.features + 3
-    assert len(models.dis_a.cnns) == 3
+    assert dis_a.cnns[0][0].conv.in_channels == preset("paper").method.texture.features + 3
+    assert len(dis_a.cnns) == 3
 
 
 def test_munit_layer_norm_formula():
@@ -202,18 +209,18 @@ def test_decoder_up_step_is_the_release_layer_sequence():
 
 def test_tiny_preset_models_build_and_run():
     cfg = preset("tiny")
-    models = build_models(cfg)
+    translator, _, dis_b = build_models(cfg)
     x_a = torch.rand(1, cfg.method.texture.features + 3, cfg.data.height, cfg.data.width) * 2 - 1
-    b_hat, _ = models.translator.a_to_b(x_a)
-    outs = models.dis_b(b_hat)
+    b_hat, _ = translator.a_to_b(x_a)
+    outs = dis_b(b_hat)
     assert len(outs) == cfg.discriminator.scales
     assert isinstance(cfg, TrainConfig)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
 def test_cuda_forward_backward():
-    models = build_models(preset("tiny"))
-    tr, dis = models.translator.cuda(), models.dis_b.cuda()
+    translator, _, dis_b = build_models(preset("tiny"))
+    tr, dis = translator.cuda(), dis_b.cuda()
     x = torch.rand(1, 6, 32, 64, device="cuda") * 2 - 1
     with torch.autocast("cuda", dtype=torch.bfloat16):
         b_hat, _ = tr.a_to_b(x)

@@ -17,7 +17,8 @@ import pytest
 import torch
 from torch import nn
 
-from sim2real.config import METHOD_CONFIGS, MethodConfig, register_method_config
+from sim2real.config import MethodConfig
+from sim2real.methods.base import METHOD_CONFIGS, register_method_config
 from sim2real.methods import METHODS
 from sim2real.methods.base import Method, OptimGroup, SequenceTranslator, Stage
 

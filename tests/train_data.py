@@ -59,7 +59,8 @@ def real_video_dir(base: Path, frames: int = 6, name: str = "real_video") -> Pat
 def tiny_config(method: str = "ours", **changes):
     """The tiny preset of ``method`` with ``section.field=value`` changes (as ``--method`` and
     ``--set`` would apply them)."""
-    from sim2real.config import override, preset
+    from sim2real.config import override
+    from sim2real.presets import preset
 
     return override(preset("tiny", method), [f"{k.replace('__', '.')}={v}" for k, v in changes.items()])
 
@@ -105,12 +106,12 @@ def weighted_total(trainer, values: dict, step: int) -> float:
 def resume_run(run, iterations: int):
     """Resume ``run`` from its last checkpoint with its own saved configuration until ``iterations``;
     returns the trainer (``.step`` is where it ended) and the step it resumed at."""
-    from sim2real.config import TrainConfig, from_dict
+    from sim2real.presets import config_from_dict
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import Trainer
 
     last = Path(run) / "checkpoints" / "last.pt"
-    cfg = from_dict(TrainConfig, load_checkpoint(last)["config"])
+    cfg = config_from_dict(load_checkpoint(last)["config"])
     cfg.iterations = iterations
     trainer = Trainer(cfg, None, None, run, resume=last, progress=False)
     start = trainer.step

@@ -1,22 +1,27 @@
-"""Typed configuration: one dataclass tree, named presets, plain-YAML round trip.
+"""Typed configuration: one dataclass tree, its plain-YAML round trip and the migration of older
+layouts. A leaf: it imports nothing of the project but the error type and the file helpers.
 
-Every size of the method is a field here, so one code path serves the paper
-preset (GPU) and the tiny preset (tests on a 2-core CPU). Override any field
-from the command line with ``--set section.field=value``.
+Every size of the method is a field here, so one code path serves the paper preset (GPU) and the
+tiny preset (tests on a 2-core CPU). The named presets, the method registry that resolves a tagged
+``method`` section and the checks across sections live next to the methods:
+:mod:`sim2real.presets` (``preset``, ``config_from_dict``, ``load_config``) and
+:mod:`sim2real.validation`. Override any field from the command line with
+``--set section.field=value``.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import yaml
 
 from sim2real.errors import UserError
+from sim2real.fileio import atomic_write_text
 
 
 @dataclass
@@ -147,8 +152,8 @@ class DataConfig:
 class MethodConfig:
     """Base of every method's own config section (``TrainConfig.method``).
 
-    A subclass is registered under its method's name (:func:`register_method_config`); in YAML
-    the section is tagged with that name (``method: {name: ours, ...}``), so a config file
+    A subclass is registered under its method's name
+    (:func:`sim2real.methods.base.register_method_config`); in YAML the section is tagged with that name (``method: {name: ours, ...}``), so a config file
     round-trips to the same class. Fields whose defaults depend on the size preset come from
     :meth:`for_size`; :meth:`check` validates the section."""
 
@@ -163,30 +168,12 @@ class MethodConfig:
         """Refuse out-of-range values with ``need(ok, 'method.<key>', what, value)``."""
 
 
-METHOD_CONFIGS: dict[str, type[MethodConfig]] = {}
-"""Registered method config sections by method name (filled by :mod:`sim2real.methods`)."""
-
-
-def register_method_config(cls: type[MethodConfig]) -> type[MethodConfig]:
-    METHOD_CONFIGS[cls.name] = cls
-    return cls
-
-
-def _method_configs() -> dict[str, type[MethodConfig]]:
-    import sim2real.methods  # noqa: F401  (registers every method)
-
-    return METHOD_CONFIGS
-
-
-def _default_method() -> MethodConfig:
-    return _method_configs()["ours"]()
-
-
 @dataclass
 class TrainConfig:
-    method: MethodConfig = field(default_factory=_default_method)
+    method: MethodConfig = field(default_factory=MethodConfig)
     """The method and its own settings (sim2real/methods/): choose one with ``--method NAME``
-    (a method or one of its named presets, :data:`sim2real.methods.METHOD_PRESETS`)."""
+    (a method or one of its named presets, :data:`sim2real.presets.METHOD_PRESETS`). A bare
+    ``TrainConfig()`` holds the untagged base section; :func:`sim2real.presets.preset` fills it."""
     iterations: int = 500_000
     checkpoint_every: int = 5_000
     keep_checkpoints: bool = False
@@ -208,137 +195,6 @@ class TrainConfig:
 
 AUTO_WORKERS_MAX = 8
 """Upper bound of ``data.workers = -1`` (more rarely pays and costs shared memory per worker)."""
-
-
-def validate(cfg: TrainConfig) -> None:
-    """Refuse a configuration whose values would fail later, or silently do something else.
-
-    Checks every field's domain (the ``method`` section checks its own,
-    :meth:`MethodConfig.check`), then the sizes that depend on each other (image
-    size vs the generator's downsamplings, the discriminator's depth and the MS-SSIM window).
-    Raises a :class:`UserError` naming the offending key.
-    """
-    from sim2real.losses.ssim import MS_SSIM_WEIGHTS, check_ssim_size
-    from sim2real.losses.structure import STRUCTURES
-    from sim2real.models.discriminator import min_input_side as dis_min_side
-    from sim2real.models.layers import NORMS, PADS
-    from sim2real.models.translator import min_input_side as gen_min_side
-    from sim2real.scene.camera import FOV_RANGE_DEG, check_size
-
-    def need(ok: bool, key: str, what: str, value: Any) -> None:
-        if not ok:
-            raise UserError(f"config key '{key}' must be {what}, got {value!r}")
-
-    def at_least(section: Any, prefix: str, names: str, low: int) -> None:
-        for name in names.split():
-            v = getattr(section, name)
-            need(v >= low, prefix + name, f">= {low}", v)
-
-    def choice(value: str, key: str, options) -> None:
-        need(value in options, key, "one of " + ", ".join(options), value)
-
-    choice(cfg.device, "device", ("auto", "cpu", "cuda"))
-    at_least(cfg, "", "iterations checkpoint_every log_every image_every", 1)
-    at_least(cfg, "", "seed", 0)
-
-    g, d, L, o, dat = cfg.generator, cfg.discriminator, cfg.loss, cfg.optim, cfg.data
-    at_least(g, "generator.", "filters", 1)
-    at_least(g, "generator.", "downsamplings res_blocks content_channels", 0)
-    choice(g.upsample_norm, "generator.upsample_norm", NORMS)
-    choice(g.pad_type, "generator.pad_type", tuple(PADS))
-    at_least(d, "discriminator.", "filters layers scales", 1)
-    choice(d.norm, "discriminator.norm", NORMS)
-    choice(d.pad_type, "discriminator.pad_type", tuple(PADS))
-    for name in ("adv", "cyc", "rec", "content", "ssim_ab", "ssim_ba"):
-        v = getattr(L, name)
-        need(math.isfinite(v) and v >= 0, f"loss.{name}", "a finite weight >= 0", v)
-    choice(L.ab_structure, "loss.ab_structure", STRUCTURES)
-    need(math.isfinite(L.edge_contrast) and L.edge_contrast > 0, "loss.edge_contrast", "finite and > 0", L.edge_contrast)
-    need(math.isfinite(L.edge_sigma) and L.edge_sigma >= 0, "loss.edge_sigma", "finite and >= 0", L.edge_sigma)
-    need(math.isfinite(L.edge_power) and L.edge_power > 0, "loss.edge_power", "finite and > 0", L.edge_power)
-    need(1 <= L.ssim_scales <= len(MS_SSIM_WEIGHTS), "loss.ssim_scales", f"in 1..{len(MS_SSIM_WEIGHTS)}", L.ssim_scales)
-    for name in ("lr_net", "lr_tex"):
-        v = getattr(o, name)
-        need(math.isfinite(v) and v > 0, f"optim.{name}", "a finite learning rate > 0", v)
-    for name in ("beta1", "beta2"):
-        v = getattr(o, name)
-        need(0 <= v < 1, f"optim.{name}", "in [0, 1)", v)
-    need(math.isfinite(o.weight_decay) and o.weight_decay >= 0, "optim.weight_decay", "finite and >= 0", o.weight_decay)
-    at_least(o, "optim.", "lr_halve_every", 1)
-    need(math.isfinite(dat.real_scale_max) and 0 < dat.real_scale_min <= dat.real_scale_max, "data.real_scale_min",
-         f"> 0 and <= data.real_scale_max ({dat.real_scale_max})", dat.real_scale_min)
-    at_least(dat, "data.", "workers", -1)
-    need(math.isfinite(dat.path_step_mm) and dat.path_step_mm >= 0, "data.path_step_mm", "finite and >= 0",
-         dat.path_step_mm)
-    need(0 <= dat.min_overlap <= 1, "data.min_overlap", "a fraction in [0, 1]", dat.min_overlap)
-    lo, hi = FOV_RANGE_DEG
-    need(lo <= dat.fov_x_deg <= hi, "data.fov_x_deg", f"in [{lo:g}, {hi:g}] degrees", dat.fov_x_deg)
-    check_size(dat.height, dat.width)
-    if type(cfg.method).name not in _method_configs():
-        raise UserError(f"unknown method '{type(cfg.method).name}'")
-    cfg.method.check(cfg, need)
-
-    step = 2**g.downsamplings
-    if dat.height % step or dat.width % step:
-        raise UserError(f"data.height and data.width must be multiples of {step} (2**generator.downsamplings), "
-                        f"got {dat.height}x{dat.width}")
-    short = min(dat.height, dat.width)
-    for side, what in ((gen_min_side(g), f"generator.downsamplings={g.downsamplings}"),
-                       (dis_min_side(d), f"discriminator.scales={d.scales} with discriminator.layers={d.layers}")):
-        if short < side:
-            raise UserError(f"{what} needs images of at least {side} px on the short side, "
-                            f"got {dat.height}x{dat.width} (data.height x data.width)")
-    if L.ssim_ab or L.ssim_ba:
-        try:
-            check_ssim_size(dat.height, dat.width, L.ssim_win)
-        except ValueError as e:
-            raise UserError(str(e)) from None
-
-
-def _paper() -> TrainConfig:
-    return TrainConfig()
-
-
-def _small() -> TrainConfig:
-    cfg = TrainConfig(iterations=20_000, checkpoint_every=1_000, log_every=50, image_every=500)
-    cfg.data = DataConfig(height=128, width=256)
-    cfg.generator = GeneratorConfig(filters=32)
-    cfg.discriminator = DiscriminatorConfig(filters=32, scales=2)
-    # 128 px short side: pytorch-msssim needs > 16 * (win - 1), so win 7 with 5 scales.
-    cfg.loss = LossConfig(ssim_win=7)
-    cfg.optim = OptimConfig(lr_halve_every=10_000)
-    return cfg
-
-
-def _tiny() -> TrainConfig:
-    cfg = TrainConfig(iterations=20, checkpoint_every=10, log_every=5, image_every=10)
-    cfg.data = DataConfig(height=64, width=128, workers=0)
-    cfg.generator = GeneratorConfig(filters=8, res_blocks=1)
-    cfg.discriminator = DiscriminatorConfig(filters=8, layers=2, scales=2)
-    # 64 px short side: pytorch-msssim's limit allows only win 3 at 5 scales.
-    cfg.loss = LossConfig(ssim_win=3)
-    cfg.optim = OptimConfig(lr_halve_every=1_000)
-    return cfg
-
-
-PRESETS: dict[str, typing.Callable[[], TrainConfig]] = {
-    "paper": _paper,
-    "small": _small,
-    "tiny": _tiny,
-}
-"""Size presets. The method section comes from :func:`sim2real.methods.method_config` for the
-chosen method and size (e.g. the texture size and the view-consistency start)."""
-
-
-def preset(name: str, method: str = "ours") -> TrainConfig:
-    """Size preset ``name`` with method (or method preset) ``method``."""
-    from sim2real.methods import method_config
-
-    if name not in PRESETS:
-        raise UserError(f"unknown preset '{name}' (choose from {', '.join(PRESETS)})")
-    cfg = PRESETS[name]()
-    cfg.method = method_config(method, name)
-    return cfg
 
 
 def to_dict(cfg: Any) -> dict:
@@ -410,9 +266,10 @@ def migrate(data: dict) -> dict:
     return data
 
 
-def from_dict(cls: type, data: dict, where: str = "") -> Any:
+def from_dict(cls: type, data: dict, where: str = "", sections: Mapping[str, type] | None = None) -> Any:
     """Build dataclass ``cls`` from a plain dict; unknown keys are an error. A method section is
-    built as the class registered under its ``name`` tag."""
+    built as the class that ``sections`` (name -> :class:`MethodConfig` subclass; the method
+    registry, which :func:`sim2real.presets.config_from_dict` passes) gives for its ``name`` tag."""
     if not isinstance(data, dict):
         raise UserError(f"config section '{where or cls.__name__}' must be a mapping")
     if cls is TrainConfig:
@@ -420,7 +277,7 @@ def from_dict(cls: type, data: dict, where: str = "") -> Any:
     if isinstance(cls, type) and issubclass(cls, MethodConfig):
         data = dict(data)
         name = data.pop("name", None)
-        known = _method_configs()
+        known = sections or {}
         if name not in known:
             raise UserError(f"config section '{where}' names unknown method {name!r} (known: {', '.join(known)})")
         cls = known[name]
@@ -434,7 +291,7 @@ def from_dict(cls: type, data: dict, where: str = "") -> Any:
     for name, value in data.items():
         hint = hints[name]
         if dataclasses.is_dataclass(hint):
-            kwargs[name] = from_dict(hint, value, f"{where}.{name}" if where else name)
+            kwargs[name] = from_dict(hint, value, f"{where}.{name}" if where else name, sections)
         else:
             kwargs[name] = _coerce(value, hint, f"{where}.{name}" if where else name)
     return cls(**kwargs)
@@ -488,15 +345,16 @@ def override(cfg: Any, assignments: list[str]) -> Any:
 
 
 def save_yaml(cfg: Any, path) -> None:
-    from sim2real.fileio import atomic_write_text
-
     atomic_write_text(path, yaml.safe_dump(to_dict(cfg), sort_keys=False))
 
 
-def load_yaml(path, cls: type = TrainConfig) -> Any:
+def read_yaml(path) -> dict:
+    """The plain dict of a YAML config file; one clear error when it cannot be read."""
     try:
         with open(path) as f:
             data = yaml.safe_load(f)
     except (OSError, yaml.YAMLError) as e:
         raise UserError(f"cannot read config {path}: {e}") from None
-    return from_dict(cls, data or {})
+    if data is not None and not isinstance(data, dict):
+        raise UserError(f"config {path} must hold a mapping of sections")
+    return data or {}

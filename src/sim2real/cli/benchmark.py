@@ -13,13 +13,12 @@ from __future__ import annotations
 import argparse
 
 from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
+from sim2real.presets import METHOD_PRESETS, PRESETS
 
 DEFAULT_MINUTES = 20.0
 
 
 def register(sub) -> None:
-    from sim2real.methods import METHOD_PRESETS
-
     p = sub.add_parser("benchmark", help="train, translate and evaluate every method on the same data (Table 1)")
     p.add_argument("--out", required=True, help="new output directory (or the benchmark to --resume)")
     p.add_argument("--methods", nargs="+", default=list(METHOD_PRESETS), metavar="NAME",
@@ -31,8 +30,8 @@ def register(sub) -> None:
     p.add_argument("--scenes", nargs="+", metavar="DIR", help="simulated scene folders (default: embedded procedural)")
     p.add_argument("--real", metavar="DIR", help="real images (with sequences/ for the video methods)")
     p.add_argument("--trajectory", nargs="+", metavar="FILE", help="test trajectories, one per scene")
-    p.add_argument("--preset", choices=("paper", "small", "tiny"), default=None,
-                   help="default: paper on a GPU, the demo's lighter 'small' (16 filters) on a CPU")
+    p.add_argument("--preset", choices=tuple(PRESETS), default=None,
+                   help="default: paper on a GPU, cpu on a CPU (sim2real/presets.py)")
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--frames", type=positive_int, default=100, help="frames of a generated test trajectory")
     p.add_argument("--eval-views", type=positive_int, default=32, help="random views for the realism metrics")
@@ -50,6 +49,7 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.comparison.run import BenchmarkSettings, run_benchmark
 
     minutes = args.minutes_per_method

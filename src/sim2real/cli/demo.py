@@ -16,6 +16,10 @@ import argparse
 import time
 
 from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
+from sim2real.errors import UserError
+from sim2real.fileio import atomic_write_json, prepare_output_dir
+from sim2real.presets import PRESETS, budgeted, config_from_dict, default_preset
+
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="run the pipeline end to end on procedural data it makes itself")
@@ -23,8 +27,8 @@ def register(sub) -> None:
     p.add_argument("--train", action="store_true",
                    help="train from scratch instead of using the shipped model")
     p.add_argument("--minutes", type=positive_float, default=None, help="with --train: training time budget (default 10)")
-    p.add_argument("--preset", choices=("paper", "small", "tiny"), default=None,
-                   help="with --train; default: paper on a GPU, a lighter 'small' (16 filters) on a CPU")
+    p.add_argument("--preset", choices=tuple(PRESETS), default=None,
+                   help="with --train; default: paper on a GPU, cpu on a CPU (sim2real/presets.py)")
     p.add_argument("--scenes", type=positive_int, default=None,
                    help="procedural simulated scenes (default 2; the shipped model's scenes without --train)")
     p.add_argument("--real-images", type=positive_int, default=200, help="stand-in real images")
@@ -40,43 +44,11 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def demo_config(preset_name: str | None, cuda: bool, device: str, method: str = "ours"):
-    """The demo's training configuration of ``method``: the paper preset on a GPU, on a CPU the
-    'small' preset with 16 filters, lr 1e-3, edge recall as the structure term (and, for ``ours``,
-    view consistency from step 300, a noisy texture start and the texture's edge recall)."""
-    from sim2real.config import override, preset
-
-    name = preset_name or ("paper" if cuda else "small")
-    cfg = preset(name, method)
-    sets = [f"device={device}", "iterations=10000000", "deterministic=false"]
-    if name == "small" and preset_name is None:
-        # ~0.7 s per iteration on a 2-core CPU (DESIGN.md); switch view consistency on early. The
-        # networks' learning rate is 10x the paper's: at 30 CPU minutes it gave the most consistent
-        # matches of the detail study (docs/detail_study.md, "The learning rate"). The structure
-        # term is edge recall at a_ref's outlines instead of MS-SSIM, for every method: the paper's
-        # term charges a perfect video more than smooth frames, which a few thousand steps of the
-        # discriminator do not outweigh (docs/detail_study.md, "A structure term that keeps the
-        # outlines").
-        sets += ["generator.filters=16", "discriminator.filters=16", "optim.lr_net=1e-3", "checkpoint_every=100",
-                 "image_every=100", "log_every=20", "loss.ab_structure=edges", "loss.edge_power=2"]
-        if hasattr(cfg.method, "vc_start"):
-            sets.append("method.vc_start=300")
-        if hasattr(cfg.method, "tex_edges"):
-            # The frames must keep the texture's edges, and the texture starts with band-limited noise:
-            # detail fixed to the surface from step 0 (docs/detail_study.md, "The texture's edges in
-            # the frame"; ORB-10 at 2.3x the ceiling's correct matches after 30 minutes on one core).
-            sets += ["method.tex_edges=1", "method.target_grad=false", "method.texture.init_noise=1.0",
-                     "method.texture.init_noise_sigma=1.5"]
-    elif name == "tiny":
-        sets += ["checkpoint_every=5", "image_every=5", "log_every=5"]
-    return override(cfg, sets)
-
-
 def _shipped_settings(args) -> dict:
     """The shipped model's record, with ``args`` checked against it: its scenes are made from its
     seeds, and training flags need ``--train``."""
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real import shipped
-    from sim2real.errors import UserError
 
     for flag, value in (("--minutes", args.minutes), ("--preset", args.preset)):
         if value is not None:
@@ -92,31 +64,32 @@ def _shipped_settings(args) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     import torch
 
     from sim2real import shipped
     from sim2real.comparison.figures import side_by_side
-    from sim2real.config import TrainConfig, from_dict, validate
+    from sim2real.data.embedded import make_embedded_data
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import Trainer, resolve_device
-    from sim2real.fileio import atomic_write_json, prepare_output_dir
     from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate
     from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
     from sim2real.metrics.realism import fid_weights_status
     from sim2real.render.raycast import RayCaster
-    from sim2real.data.embedded import make_embedded_data
     from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import make_trajectory
+    from sim2real.validation import validate
 
     cuda = args.device == "cuda" or (args.device == "auto" and torch.cuda.is_available())
     if args.train:
         args.minutes = 10.0 if args.minutes is None else args.minutes
         args.seed = 0 if args.seed is None else args.seed
         args.scenes = 2 if args.scenes is None else args.scenes
-        cfg = demo_config(args.preset, cuda, args.device)
+        args.preset = args.preset or default_preset(cuda)
+        cfg = budgeted(args.preset, "ours", args.device)
     else:
         record = _shipped_settings(args)
-        cfg = from_dict(TrainConfig, load_checkpoint(shipped.model_path())["config"])
+        cfg = config_from_dict(load_checkpoint(shipped.model_path())["config"])
     h, w = cfg.data.height, cfg.data.width
     settings = EvalSettings(views=args.eval_views, frames=args.frames, seg_iterations=args.seg_iterations,
                             seed=args.seed, trajectory=motion_kwargs(args))
@@ -161,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
                  args.seed, args.device)
     atomic_write_json(out / "demo.json", {
         "model": "trained here" if args.train else "shipped",
-        "preset": (args.preset or ("paper" if cuda else "small-16")) if args.train else "small-16 (shipped)",
+        "preset": args.preset if args.train else f"{record.get('preset', shipped.PRESET)} (shipped)",
         "device": "cuda" if cuda else "cpu",
         "training_minutes": args.minutes if args.train else (record.get("trained") or {}).get("minutes"),
         "training_steps": steps,

@@ -48,8 +48,9 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sim2real.realdomain.writer import make_real_domain
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.realdomain import RenderOptions
+    from sim2real.realdomain.writer import make_real_domain
 
     options = RenderOptions(mask=args.mask, blur_px=args.blur, noise=args.noise)
     manifest = make_real_domain(

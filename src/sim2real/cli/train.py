@@ -1,9 +1,16 @@
 """``sim2real train``: train textures + translator on simulated scenes and real images.
 
-    sim2real train --preset {paper,small,tiny} [--method NAME] --scenes DIR... --real DIR --out RUN
+    sim2real train --preset {paper,small,tiny,cpu,cpu-lines} [--method NAME] --scenes DIR... --real DIR --out RUN
                    [--iterations N] [--max-minutes M] [--checkpoint-every N] [--device {auto,cpu,cuda}]
                    [--set section.field=value ...] [--config YAML] [--resume]
+    sim2real train --init-from RUN|shipped --scenes DIR... --real DIR --out RUN [--preset ...] [--set ...]
     sim2real train --out RUN --resume [--iterations N] [--set ...]
+
+``--init-from`` starts a new run from a trained run's translator and discriminators, with fresh
+neural textures for the given scenes, and takes over that run's configuration (method section,
+losses, optimiser, sizes; for ``shipped`` the YAML beside the shipped weights, the ``cpu-lines``
+preset). ``--preset``, ``--config`` or ``--set`` on the same command override it; every key that
+then differs from the source's is printed.
 
 ``--resume`` continues RUN from its last checkpoint, in one of two ways:
 
@@ -21,8 +28,13 @@ Multi-GPU / multi-node: start it with ``torchrun`` (docs/training.md).
 from __future__ import annotations
 
 import argparse
+import os
+from pathlib import Path
 
 from sim2real.cli.args import positive_float, positive_int
+from sim2real.config import differences, override
+from sim2real.errors import UserError
+from sim2real.presets import PRESETS, config_from_dict, load_config, preset
 
 RESUMABLE = ("iterations", "checkpoint_every")
 """Config fields that a resume may change without notice (so may ``--max-minutes``)."""
@@ -30,7 +42,7 @@ RESUMABLE = ("iterations", "checkpoint_every")
 
 def register(sub) -> None:
     p = sub.add_parser("train", help="train neural textures and the translator (docs/training.md)")
-    p.add_argument("--preset", help="configuration preset: paper, small or tiny")
+    p.add_argument("--preset", help="configuration preset: " + ", ".join(PRESETS) + " (sim2real/presets.py)")
     p.add_argument("--method", help="method or method preset with --preset (default: ours): ours, ours_no_vc, "
                                     "ours_l1_vc, ours_no_tex_vc, ... (sim2real/methods/)")
     p.add_argument("--config", help="YAML configuration (e.g. a run's config.yaml) instead of a preset")
@@ -45,11 +57,10 @@ def register(sub) -> None:
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="where to train (default: config, auto)")
     p.add_argument("--set", dest="overrides", action="append", nargs="+", default=[], metavar="KEY=VALUE",
                    help="override any config field, e.g. --set method.vc=10 data.workers=4")
-    p.add_argument("--init-from", metavar="RUN", help="start from a trained run's (or checkpoint's) networks, "
-                                                      "with fresh neural textures for these scenes; 'shipped': "
-                                                      "the demo model inside the package (CPU preset 'small', "
-                                                      "16 filters: --preset small --set generator.filters=16 "
-                                                      "discriminator.filters=16)")
+    p.add_argument("--init-from", metavar="RUN", help="start from a trained run's (or checkpoint's) networks and "
+                                                      "configuration, with fresh neural textures for these scenes; "
+                                                      "'shipped': the demo model inside the package (preset "
+                                                      "cpu-lines)")
     p.add_argument("--resume", action="store_true",
                    help="continue RUN from RUN/checkpoints/last.pt (append it to the run's command, or give --out alone)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -58,15 +69,12 @@ def register(sub) -> None:
 
 def build_config(args: argparse.Namespace, base=None):
     """The effective config: preset / YAML / checkpoint config, then the direct flags, then --set."""
-    from sim2real.config import load_yaml, override, preset
-    from sim2real.errors import UserError
-
     if args.method and not args.preset:
         raise UserError("--method goes with --preset (a --config file or a resumed run names its own method)")
     if base is not None:
         cfg = base
     elif args.config:
-        cfg = load_yaml(args.config)
+        cfg = load_config(args.config)
     else:
         cfg = preset(args.preset, args.method or "ours")
     sets = [s for group in args.overrides for s in group]
@@ -96,14 +104,7 @@ def resume_config(args: argparse.Namespace, state: dict, path) -> tuple[object, 
     and ``--scenes`` / ``--real`` with its inputs; any difference is refused, all of them
     named in one line. Without, the checkpoint's config is changed by the flags given.
     """
-    from pathlib import Path
-
-    from sim2real.config import TrainConfig, differences, from_dict
-    from sim2real.errors import UserError
-
-    saved = from_dict(TrainConfig, state["config"])
-    if args.preset and args.config:
-        raise UserError("give either --preset or --config, not both")
+    saved = config_from_dict(state["config"])
     given = args.preset or args.config
     cfg = build_config(args, None if given else saved)
     changes = [d for d in differences(saved, cfg) if d[0] not in RESUMABLE]
@@ -120,16 +121,31 @@ def resume_config(args: argparse.Namespace, state: dict, path) -> tuple[object, 
     return cfg, changes
 
 
-def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
+def init_config(source):
+    """The configuration that ``--init-from SOURCE`` takes over: for the shipped model the YAML
+    beside its weights, else the checkpoint's."""
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
+    from sim2real import shipped
+    from sim2real.engine import checkpoint as ckpt
 
+    if Path(source) == shipped.model_path():
+        return load_config(shipped.config_path())
+    return config_from_dict(ckpt.load_checkpoint(ckpt.find_run_checkpoint(source))["config"])
+
+
+def run(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
+    from sim2real import shipped
     from sim2real.engine import checkpoint as ckpt
     from sim2real.engine.stop import exit_code, signal_name
     from sim2real.engine.trainer import Trainer
-    from sim2real.errors import UserError
 
     state = path = None
     changes = []
+    if args.init_from and args.resume:
+        raise UserError("--init-from starts a new run; it cannot be combined with --resume")
+    if args.preset and args.config:
+        raise UserError("give either --preset or --config, not both")
     if args.resume:
         path = Path(args.out) / "checkpoints" / ckpt.LAST
         if not path.is_file():
@@ -137,21 +153,22 @@ def run(args: argparse.Namespace) -> int:
         state = ckpt.load_checkpoint(path)
         cfg, changes = resume_config(args, state, path)
     else:
-        if not args.preset and not args.config:
-            raise UserError("give --preset (paper, small or tiny) or --config, or --resume a run")
-        if args.preset and args.config:
-            raise UserError("give either --preset or --config, not both")
+        if not args.preset and not args.config and not args.init_from:
+            raise UserError("give --preset (" + ", ".join(PRESETS) + "), --config or --init-from, or --resume a run")
         if not args.scenes:
             raise UserError("no simulated scenes given (--scenes DIR...)")
         if not args.real:
             raise UserError("no real image folder given (--real DIR)")
-        cfg = build_config(args)
-    if args.init_from and args.resume:
-        raise UserError("--init-from starts a new run; it cannot be combined with --resume")
-    if args.init_from:
-        from sim2real import shipped
-
-        args.init_from = shipped.init_source(args.init_from)
+        if args.init_from:
+            given_source, args.init_from = args.init_from, shipped.init_source(args.init_from)
+            source = init_config(args.init_from)
+            cfg = build_config(args, None if args.preset or args.config else source)
+            overrides = differences(source, cfg)
+            listed = ", ".join(f"{k} {_show(a)} -> {_show(b)}" for k, a, b in overrides) or "none"
+            if os.environ.get("RANK", "0") == "0":  # once under torchrun
+                print(f"--init-from {given_source}: its configuration, overridden: {listed}", flush=True)
+        else:
+            cfg = build_config(args)
     trainer = Trainer(cfg, scenes=args.scenes, real=args.real, out=args.out, resume=path,
                       progress=not args.no_progress, resume_state=state, init_from=args.init_from)
     try:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 
 from sim2real.cli.args import positive_float, positive_int
+from sim2real.errors import UserError
 
 
 def register(sub) -> None:
@@ -33,7 +34,7 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sim2real.errors import UserError
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.inference.translate import load_run, trajectory_source, translate_sequence, views_source
 
     if args.views and (args.scene or args.trajectory):

@@ -10,9 +10,18 @@ import math
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw
 
+from sim2real.comparison.table import markdown
 from sim2real.fileio import atomic_write_image, atomic_write_text
+from sim2real.grid import tile
+from sim2real.inference.anchors import Anchors, stand_in_options
+from sim2real.inference.frames import iter_gbuffers
 from sim2real.inference.report import COLOURS, _fmt_tick, _html, _nice_ticks
+from sim2real.inference.translate import load_run
+from sim2real.render.reference import reference_rendering, to_uint8
+from sim2real.scene.scene import Scene
+from sim2real.scene.trajectory import Trajectory
 
 BARS = (("orb_1_accuracy", "ORB-1 accuracy", True), ("orb_5_accuracy", "ORB-5 accuracy", True),
         ("orb_10_accuracy", "ORB-10 accuracy", True), ("orb_1_correct", "ORB-1 correct matches per pair", False),
@@ -65,8 +74,6 @@ def svg_bar_chart(values: dict[str, float | None], title: str, refs: dict[str, f
 
 def _label(text: str, h: int, w: int) -> np.ndarray:
     """A white tile with ``text`` (PIL's default font), for the figure's row names."""
-    from PIL import Image, ImageDraw
-
     im = Image.new("RGB", (w, h), "white")
     ImageDraw.Draw(im).text((4, h // 2 - 6), text, fill=(0, 0, 0))
     return np.asarray(im)
@@ -76,14 +83,6 @@ def side_by_side(png: Path, runs: dict[str, Path], scene_dir: Path, trajectory: 
                  device: str = "auto") -> dict:
     """``png``: rows a_ref, ceiling, then one per run (name: run folder); columns views 0, T/2, T-1
     of the test trajectory and view 0 revisited at the end of 1..T, T..1. Returns its description."""
-    from sim2real.grid import tile
-    from sim2real.inference.anchors import Anchors, stand_in_options
-    from sim2real.inference.frames import iter_gbuffers
-    from sim2real.inference.translate import load_run
-    from sim2real.render.reference import reference_rendering, to_uint8
-    from sim2real.scene.scene import Scene
-    from sim2real.scene.trajectory import Trajectory
-
     cams = Trajectory.load(trajectory).cameras
     T = len(cams)
     views = [0, T // 2, T - 1]
@@ -110,8 +109,6 @@ def side_by_side(png: Path, runs: dict[str, Path], scene_dir: Path, trajectory: 
 
 def write_report(table: dict, out: Path, figure: dict) -> None:
     """``report.html``: the table, a bar chart per metric, the side-by-side views."""
-    from sim2real.comparison.table import markdown
-
     blocks: list[tuple] = [("h", 1, "sim2real benchmark"), ("pre", markdown(table))]
     names = list(table["methods"])
     for key, title, pct in BARS:

@@ -1,6 +1,6 @@
 """``sim2real benchmark``: the paper's Table 1 in one command.
 
-Every method (a preset of :data:`sim2real.methods.METHOD_PRESETS`) is trained on the same data
+Every method (a preset of :data:`sim2real.presets.METHOD_PRESETS`) is trained on the same data
 with the same seed for the same budget (wall-clock minutes or iterations; both are recorded),
 translates the same test trajectories, and is scored by the one evaluator
 (:func:`sim2real.inference.evaluate.evaluate`: FID/KID with weights, else the named proxy; Dice;
@@ -28,14 +28,33 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
+import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import torch
+
+from sim2real.comparison.figures import side_by_side, write_report
+from sim2real.comparison.table import build_table, write_table
+from sim2real.config import override, to_dict
+from sim2real.data.embedded import make_embedded_data
+from sim2real.engine.trainer import Trainer, resolve_device
 from sim2real.errors import UserError
-from sim2real.fileio import atomic_write_json
+from sim2real.fileio import atomic_write_json, atomic_write_json as write
+from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate
+from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
+from sim2real.methods import get_method
+from sim2real.metrics.realism import fid_weights_status
+from sim2real.presets import METHOD_PRESETS, budgeted, config_from_dict, default_preset
+from sim2real.render.raycast import RayCaster
+from sim2real.scene.scene import Scene
+from sim2real.scene.trajectory import make_trajectory
+from sim2real.threads import usable_cores
+from sim2real.validation import validate
 
 FORMAT = "sim2real-benchmark/1"
 
@@ -50,7 +69,7 @@ class BenchmarkSettings:
     iterations: int | None = None
     """Iteration budget per method."""
     preset: str | None = None
-    """Size preset; None: paper on a GPU, the demo's lighter 'small' (16 filters) on a CPU."""
+    """Preset name (sim2real/presets.py); None: paper on a GPU, cpu on a CPU."""
     seed: int = 0
     device: str = "auto"
     scenes: int = 2
@@ -75,11 +94,9 @@ def _say(msg: str) -> None:
 
 
 def method_config(s: BenchmarkSettings, method: str, cuda: bool):
-    """The training configuration of ``method`` in this benchmark (the demo's, with the budget)."""
-    from sim2real.cli.demo import demo_config
-    from sim2real.config import override
-
-    cfg = demo_config(s.preset, cuda, s.device, method)
+    """The training configuration of ``method`` in this benchmark: its preset (default: ``paper`` on
+    a GPU, ``cpu`` on a CPU) for a run that the budget ends."""
+    cfg = budgeted(s.preset or default_preset(cuda), method, s.device)
     sets = [f"seed={s.seed}"]
     if s.iterations is not None:
         sets.append(f"iterations={s.iterations}")
@@ -88,21 +105,11 @@ def method_config(s: BenchmarkSettings, method: str, cuda: bool):
 
 
 def _uses_sequences(cfg) -> bool:
-    from sim2real.methods import get_method
-
     return get_method(cfg).data == "triplets"
 
 
 def check(s: BenchmarkSettings, out: Path, scenes, real, trajectories, resume: bool, fid_weights) -> dict:
     """Every input checked before anything is written or trained; returns the method configs."""
-    import torch
-
-    from sim2real.config import validate
-    from sim2real.engine.trainer import resolve_device
-    from sim2real.inference.evaluate import EvalSettings, check_settings
-    from sim2real.methods import METHOD_PRESETS
-    from sim2real.metrics.realism import fid_weights_status
-
     if not s.methods:
         raise UserError("no methods to compare (--methods NAME...)")
     unknown = [m for m in s.methods if m not in METHOD_PRESETS]
@@ -170,8 +177,6 @@ def _fresh(path: Path) -> Path:
 
 
 def _data(s: BenchmarkSettings, out: Path, configs: dict, scenes, real) -> tuple[list[Path], Path]:
-    from sim2real.data.embedded import make_embedded_data
-
     if scenes is not None:
         return [Path(d) for d in scenes], Path(real)
     data = out / "data"
@@ -189,9 +194,6 @@ def _data(s: BenchmarkSettings, out: Path, configs: dict, scenes, real) -> tuple
 
 def _train(name: str, cfg, s: BenchmarkSettings, scenes: list[Path], real: Path, out: Path) -> dict:
     """Train one method for its budget (resuming an interrupted run); returns its done record."""
-    from sim2real.engine.trainer import Trainer
-    from sim2real.fileio import atomic_write_json as write
-
     run = out / "runs" / name
     done, progress = run / "done.json", run / "progress.json"
     if done.is_file():
@@ -219,7 +221,6 @@ def _train(name: str, cfg, s: BenchmarkSettings, scenes: list[Path], real: Path,
         trainer.close()
     if trainer.stopped_by:
         raise UserError(f"training of {name} was stopped; continue with --resume")
-    import torch
 
     rec = {"method": name, "iterations": trainer.step, "seconds": round(spent + time.perf_counter() - t0, 1),
            "budget": {"minutes": s.minutes} if s.minutes is not None else {"iterations": s.iterations},
@@ -230,26 +231,17 @@ def _train(name: str, cfg, s: BenchmarkSettings, scenes: list[Path], real: Path,
 
 def train_job(job_file: str) -> None:
     """Entry point of one training process of a parallel benchmark (see :func:`_train_all`)."""
-    from sim2real.config import TrainConfig, from_dict
-
     job = json.loads(Path(job_file).read_text())
-    import torch
 
     torch.set_num_threads(job["threads"])
     s = BenchmarkSettings(**job["settings"])
-    _train(job["name"], from_dict(TrainConfig, job["config"]), s, [Path(d) for d in job["scenes"]], Path(job["real"]),
+    _train(job["name"], config_from_dict(job["config"]), s, [Path(d) for d in job["scenes"]], Path(job["real"]),
            Path(job["out"]))
 
 
 def _train_all(configs: dict, s: BenchmarkSettings, scenes: list[Path], real: Path, out: Path) -> dict:
     """Train every method for its budget: one after the other, or ``s.parallel`` at a time, each
     in its own process with an equal share of the cores."""
-    import os
-    import subprocess
-
-    from sim2real.config import to_dict
-    from sim2real.threads import usable_cores
-
     pending = [n for n in configs if not (out / "runs" / n / "done.json").is_file()]
     if s.parallel > 1 and len(pending) > 1:
         threads = max(1, usable_cores() // s.parallel)
@@ -288,14 +280,6 @@ def _train_all(configs: dict, s: BenchmarkSettings, scenes: list[Path], real: Pa
 def run_benchmark(out, s: BenchmarkSettings, scenes=None, real=None, trajectories=None, resume: bool = False,
                   fid_weights=None) -> dict:
     """Train, translate, evaluate every method and write the table and the report (module docstring)."""
-    from sim2real.comparison.figures import side_by_side, write_report
-    from sim2real.comparison.table import build_table, write_table
-    from sim2real.inference.evaluate import EvalSettings, evaluate
-    from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
-    from sim2real.render.raycast import RayCaster
-    from sim2real.scene.scene import Scene
-    from sim2real.scene.trajectory import make_trajectory
-
     out = Path(out)
     configs = check(s, out, scenes, real, trajectories, resume, fid_weights)
     atomic_write_json(out / "benchmark.json", {"format": FORMAT, "settings": _settings_json(s, scenes, real, trajectories)})

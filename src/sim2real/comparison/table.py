@@ -15,14 +15,13 @@ from pathlib import Path
 
 from sim2real.fileio import atomic_write_json, atomic_write_text
 from sim2real.inference.rows import PAPER_KS, positions
+from sim2real.methods import get_method
 
 KINDS = {"views": "img", "triplets": "vid", "view_pairs": "ours"}
 """The paper's 'type' column by the data a method trains on."""
 
 
 def _kind(cfg) -> str:
-    from sim2real.methods import get_method
-
     method = get_method(cfg)
     if method.data == "views" and getattr(cfg.method, "texture", None) is not None and cfg.method.texture.features:
         return "ours"  # the texture without view consistency (ours_no_vc)
@@ -31,8 +30,6 @@ def _kind(cfg) -> str:
 
 def build_table(metrics: dict[str, dict], trained: dict[str, dict], configs: dict) -> dict:
     """``table.json``'s content from each method's ``metrics.json`` and training record."""
-    from sim2real.methods import get_method
-
     first = next(iter(metrics.values()))
     anchors = {r: first["rows"][r] for r in ("ceiling", "floor", "a_ref") if r in first["rows"]}
     methods = {}

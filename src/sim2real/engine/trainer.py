@@ -43,7 +43,8 @@ from typing import Callable
 import numpy as np
 import torch
 
-from sim2real.config import AUTO_WORKERS_MAX, TrainConfig, to_dict, validate
+from sim2real.config import AUTO_WORKERS_MAX, TrainConfig, to_dict
+from sim2real.validation import validate
 from sim2real.data.datasets import StepSampler, make_dataset, resolve_scenes
 from sim2real.data.real import RealImages
 from sim2real.engine import checkpoint as ckpt

@@ -237,7 +237,7 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
     method and scene list come from the checkpoint itself; the scene folders are not needed
     (the textures hold their objects' bounding boxes).
     """
-    from sim2real.config import TrainConfig, from_dict
+    from sim2real.presets import config_from_dict
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import resolve_device
     from sim2real.methods import get_method
@@ -245,7 +245,7 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
     path = find_checkpoint(run_dir, checkpoint)
     state = load_checkpoint(path)
     try:
-        cfg = from_dict(TrainConfig, state["config"])
+        cfg = config_from_dict(state["config"])
         scenes_raw = list(state["scenes"])
         gen_state = state["gen"]
     except KeyError as e:

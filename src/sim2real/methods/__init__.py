@@ -1,5 +1,6 @@
 """Methods as plug-ins: each module registers a :class:`~sim2real.methods.base.Method` and its
-config section; named presets of a method (the paper's ablations) are values of that section.
+config section; named presets of a method (the paper's ablations, :data:`sim2real.presets.METHOD_PRESETS`)
+are values of that section.
 
 =================  ==========  ==============================================================
 preset             method      what it is
@@ -17,9 +18,9 @@ preset             method      what it is
 
 from __future__ import annotations
 
-from sim2real.config import METHOD_CONFIGS, MethodConfig, TrainConfig, override
+from sim2real.config import TrainConfig
 from sim2real.errors import UserError
-from sim2real.methods.base import Method
+from sim2real.methods.base import METHOD_CONFIGS, Method, register_method_config
 from sim2real.methods.of_unit import OfUnit
 from sim2real.methods.ours import Ours
 from sim2real.methods.recycle import Recycle
@@ -27,26 +28,6 @@ from sim2real.methods.ssim_munit import SsimMunit
 
 METHODS: dict[str, type[Method]] = {m.name: m for m in (Ours, SsimMunit, Recycle, OfUnit)}
 """Registered methods by name."""
-
-METHOD_PRESETS: dict[str, tuple[str, tuple[str, ...]]] = {
-    "ours": ("ours", ()),
-    "ours_no_vc": ("ours", ("vc=0",)),
-    "ours_l1_vc": ("ours", ("vc_kind=l1",)),
-    "ours_no_tex_vc": ("ours", ("texture.features=0", "vc=0")),
-    "ssim_munit": ("ssim_munit", ()),
-    "recycle": ("recycle", ()),
-    "ssim_recycle": ("recycle", ("ssim=true",)),
-    "of_unit": ("of_unit", ()),
-}
-"""Named presets: (method, assignments to its config section)."""
-
-
-def method_config(name: str, size: str = "paper") -> MethodConfig:
-    """The config section of method preset ``name`` at size preset ``size``."""
-    if name not in METHOD_PRESETS:
-        raise UserError(f"unknown method '{name}' (choose from {', '.join(METHOD_PRESETS)})")
-    method, sets = METHOD_PRESETS[name]
-    return override(METHOD_CONFIGS[method].for_size(size), list(sets))
 
 
 def get_method(cfg: TrainConfig) -> Method:
@@ -57,4 +38,4 @@ def get_method(cfg: TrainConfig) -> Method:
     return METHODS[name](cfg)
 
 
-__all__ = ["METHODS", "METHOD_PRESETS", "Method", "get_method", "method_config"]
+__all__ = ["METHOD_CONFIGS", "METHODS", "Method", "get_method", "register_method_config"]

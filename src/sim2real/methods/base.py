@@ -34,10 +34,21 @@ import torch
 from torch import nn
 
 from sim2real.config import MethodConfig, TrainConfig
+from sim2real.data.tensors import view_tensors
 from sim2real.errors import UserError
 
 Batch = dict[str, torch.Tensor]
 Out = dict[str, torch.Tensor]
+
+METHOD_CONFIGS: dict[str, type[MethodConfig]] = {}
+"""Registered method config sections by method name: what a tagged ``method`` section of a config
+dict or YAML file is built as (:func:`sim2real.presets.config_from_dict`)."""
+
+
+def register_method_config(cls: type[MethodConfig]) -> type[MethodConfig]:
+    """Class decorator: register a method's config section under its ``name``."""
+    METHOD_CONFIGS[cls.name] = cls
+    return cls
 
 
 class Stage(nn.Module):
@@ -193,8 +204,6 @@ class Method(ABC):
 
     def inference_batch(self, gbuffers, scene_index: int, device: torch.device) -> Batch:
         """The batch of view tensors that :meth:`translate_frames` takes for ``gbuffers``."""
-        from sim2real.data.tensors import view_tensors
-
         batch = {k: v.to(device) for k, v in view_tensors(gbuffers, "i").items()}
         batch["scene"] = [scene_index] * len(gbuffers)
         return batch

@@ -8,7 +8,7 @@ from typing import Callable
 import torch
 import torch.nn.functional as F
 
-from sim2real.losses import lsgan_dis_loss
+from sim2real.losses import lsgan_dis_loss, lsgan_gen_loss
 from sim2real.methods.base import Stage
 
 
@@ -50,8 +50,6 @@ def dis_terms(dis, out: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
 def adv_terms(dis, out: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """Unweighted LSGAN generator terms: D_A on ``a_hat``, D_B on ``b_hat`` (gradient flows to the
     generators; the trainer freezes the discriminators meanwhile)."""
-    from sim2real.losses import lsgan_gen_loss
-
     return {"adv_a": lsgan_gen_loss([s.float() for s in dis.dis_a(out["a_hat"])]),
             "adv_b": lsgan_gen_loss([s.float() for s in dis.dis_b(out["b_hat"])])}
 

@@ -55,12 +55,14 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from sim2real.config import MethodConfig, register_method_config
+from sim2real.config import MethodConfig
 from sim2real.losses import warp_backward
 from sim2real.losses.consistency import masked_l1_loss
-from sim2real.methods.base import Batch, OptimGroup, Out, SequenceTranslator, rgb
+from sim2real.methods.base import Batch, OptimGroup, Out, SequenceTranslator, register_method_config, rgb
 from sim2real.methods.common import DisStage, translator_terms
 from sim2real.methods.ours import GenStage, Ours
+from sim2real.models.discriminator import MsImageDis
+from sim2real.render.warp import correspondences
 
 PREV_CHANNELS = 3
 """Channels of the warped previous output in domain A (in place of ours' texture features)."""
@@ -116,8 +118,6 @@ class OfUnit(Ours):
     # --- construction ----------------------------------------------------------------------------
 
     def build(self, sources) -> tuple[GenStage, DisStage]:
-        from sim2real.models.discriminator import MsImageDis
-
         d = self.cfg.discriminator
         gen = self._stage(self.scene_keys(sources), nn.ModuleDict())  # no neural texture
         return gen, DisStage(MsImageDis(PREV_CHANNELS + 3, d), MsImageDis(3, d))
@@ -210,8 +210,6 @@ class OfUnitSequence(SequenceTranslator):
 
     def warped_prev(self, gbuffer) -> torch.Tensor | None:
         """``w_t(b̂_{t-1})`` (1, 3, H, W) for frame ``gbuffer``; None at the start of the sequence."""
-        from sim2real.render.warp import correspondences
-
         if self.prev is None:
             return None
         uv, visible = correspondences(gbuffer, self.prev_gbuffer)

@@ -1,6 +1,6 @@
 """``ours`` (the paper): neural texture + reference rendering -> MUNIT without styles, + L_vc.
 
-Its named presets (:data:`sim2real.methods.METHOD_PRESETS`) are the paper's ablations, each a
+Its named presets (:data:`sim2real.presets.METHOD_PRESETS`) are the paper's ablations, each a
 value of this section, not a separate code path:
 
 * ``ours_no_vc``: ``vc = 0`` (no view j is even rendered: the data are single views);
@@ -17,15 +17,23 @@ edge wherever a_tex has one, so that the frames' detail stays on the surface (do
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
+import numpy as np
 import torch
 from torch import nn
 
-from sim2real.config import MethodConfig, TextureConfig, register_method_config
+from sim2real.config import MethodConfig, TextureConfig
+from sim2real.errors import UserError
 from sim2real.losses import edge_recall_loss, l1, ms_ssim_loss, structure_ab_loss, view_consistency, warp_backward
-from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, rgb
+from sim2real.losses.consistency import VC_KINDS
+from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, register_method_config, rgb
 from sim2real.methods.common import DisStage, adv_terms, dis_terms, pad_apply, translator_terms, translator_weights
+from sim2real.models.discriminator import MsImageDis
+from sim2real.models.translator import Translator
+from sim2real.render.reference import class_albedo
+from sim2real.texture.neural_texture import MAPPINGS, TANH_MODES, NeuralTexture
 
 
 @register_method_config
@@ -60,11 +68,6 @@ class OursConfig(MethodConfig):
         return cls()
 
     def check(self, cfg, need) -> None:
-        import math
-
-        from sim2real.losses.consistency import VC_KINDS
-        from sim2real.texture.neural_texture import MAPPINGS, TANH_MODES
-
         t = self.texture
         need(t.size >= 1, "method.texture.size", ">= 1", t.size)
         need(t.features >= 0, "method.texture.features", ">= 0 (0: no texture)", t.features)
@@ -123,15 +126,9 @@ class Ours(Method):
     # --- construction ----------------------------------------------------------------------------
 
     def _stage(self, keys: list[str], textures: nn.ModuleDict) -> GenStage:
-        from sim2real.models.translator import Translator
-
         return GenStage(Translator(self.features, self.cfg.generator), textures, keys)
 
     def build(self, sources) -> tuple[GenStage, DisStage]:
-        from sim2real.models.discriminator import MsImageDis
-        from sim2real.render.reference import class_albedo
-        from sim2real.texture.neural_texture import NeuralTexture
-
         keys, textures = self.scene_keys(sources), nn.ModuleDict()
         if self.features:
             for key, src in zip(keys, sources):
@@ -246,11 +243,6 @@ class Ours(Method):
     # --- inference -------------------------------------------------------------------------------
 
     def inference_stage(self, state: dict, where) -> tuple[GenStage, list[int | None]]:
-        import numpy as np
-
-        from sim2real.errors import UserError
-        from sim2real.texture.neural_texture import NeuralTexture
-
         gen_state = state["gen"]
         shell = replace(self.mc.texture, init_noise=0.0, init_lines=0.0)  # its texels come from the checkpoint
         keys, textures, objects = [], nn.ModuleDict(), []

@@ -64,10 +64,13 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from sim2real.config import MethodConfig, register_method_config
+from sim2real.config import MethodConfig
 from sim2real.losses import l1, lsgan_dis_loss, lsgan_gen_loss, ms_ssim_loss, structure_ab_loss
-from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, rgb
+from sim2real.methods.base import Batch, Method, OptimGroup, Out, Stage, register_method_config, rgb
 from sim2real.methods.common import DisStage, pad_apply
+from sim2real.models.discriminator import MsImageDis
+from sim2real.models.predictor import PREDICTOR_NORMS, UNetPredictor, predictor_size_error
+from sim2real.models.resnet_generator import ResnetGenerator
 
 FRAMES = 3
 
@@ -106,8 +109,6 @@ class RecycleConfig(MethodConfig):
         return cls()
 
     def check(self, cfg, need) -> None:
-        from sim2real.models.predictor import PREDICTOR_NORMS, predictor_size_error
-
         for key in ("recurrent", "recycle", "identity"):
             v = getattr(self, key)
             need(math.isfinite(v) and v >= 0, f"method.{key}", "a finite weight >= 0", v)
@@ -147,17 +148,12 @@ class Recycle(Method):
     # --- construction ----------------------------------------------------------------------------
 
     def _stage(self) -> RecycleGen:
-        from sim2real.models.predictor import UNetPredictor
-        from sim2real.models.resnet_generator import ResnetGenerator
-
         g, m = self.cfg.generator, self.mc
         gen = lambda: ResnetGenerator(3, 3, g.filters, g.downsamplings, m.gen_res_blocks, g.pad_type)
         pred = lambda: UNetPredictor(3, m.pred_filters, m.pred_levels, m.pred_norm)
         return RecycleGen(gen(), gen(), pred(), pred())
 
     def build(self, sources) -> tuple[RecycleGen, DisStage]:
-        from sim2real.models.discriminator import MsImageDis
-
         d = self.cfg.discriminator
         return self._stage(), DisStage(MsImageDis(3, d), MsImageDis(3, d))
 

@@ -57,10 +57,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from sim2real.config import MethodConfig, register_method_config
+from sim2real.config import MethodConfig
 from sim2real.losses import l1, ms_ssim_loss, structure_ab_loss
-from sim2real.methods.base import Batch, Method, OptimGroup, Out, SequenceTranslator, Stage, rgb
+from sim2real.methods.base import Batch, Method, OptimGroup, Out, SequenceTranslator, Stage, register_method_config, rgb
 from sim2real.methods.common import DisStage, adv_terms, dis_terms, pad_apply, translator_weights
+from sim2real.models.discriminator import MsImageDis
+from sim2real.models.style import StyleGenerator, style_min_input_side
 
 
 @register_method_config
@@ -85,8 +87,6 @@ class SsimMunitConfig(MethodConfig):
     """Seed of the inference draws: a sequence's style and its frames' noise."""
 
     def check(self, cfg, need) -> None:
-        from sim2real.models.style import style_min_input_side
-
         need(self.style_dim >= 1, "method.style_dim", ">= 1", self.style_dim)
         need(self.mlp_dim >= 1, "method.mlp_dim", ">= 1", self.mlp_dim)
         need(self.mlp_layers >= 1, "method.mlp_layers", ">= 1", self.mlp_layers)
@@ -151,15 +151,11 @@ class SsimMunit(Method):
     # --- construction ----------------------------------------------------------------------------
 
     def _gen(self) -> MunitGen:
-        from sim2real.models.style import StyleGenerator
-
         g, m = self.cfg.generator, self.mc
         return MunitGen(StyleGenerator(3, g, m.style_dim, m.mlp_dim, m.mlp_layers),
                         StyleGenerator(3, g, m.style_dim, m.mlp_dim, m.mlp_layers))
 
     def build(self, sources) -> tuple[MunitGen, DisStage]:
-        from sim2real.models.discriminator import MsImageDis
-
         d = self.cfg.discriminator
         return self._gen(), DisStage(MsImageDis(3, d), MsImageDis(3, d))
 

@@ -21,13 +21,11 @@ All padding is ``pad_type`` (reflect). Domain A is ``cat(a_tex, a_ref)`` with
 
 from __future__ import annotations
 
-from typing import NamedTuple
 
 import torch
 from torch import nn
 
-from sim2real.config import GeneratorConfig, TrainConfig
-from sim2real.models.discriminator import MsImageDis
+from sim2real.config import GeneratorConfig
 from sim2real.models.layers import Conv2dBlock, ResBlock, UpConv2dBlock, init_weights
 
 
@@ -119,18 +117,3 @@ class Translator(nn.Module):
         """x_b -> (a_hat = G_A(E_B(x_b)), content code E_B(x_b)); a_hat holds tex and ref."""
         c = self.enc_b(x_b)
         return self.dec_a(c), c
-
-
-class Models(NamedTuple):
-    translator: Translator
-    dis_a: MsImageDis
-    dis_b: MsImageDis
-
-
-def build_models(cfg: TrainConfig, n_features: int | None = None) -> Models:
-    """Translator (Kaiming init) and D_A, D_B (N(0, 0.02) init) for ``cfg``.
-    ``n_features`` (texture channels of domain A) defaults to the ``ours`` section's
-    ``cfg.method.texture.features``."""
-    n = cfg.method.texture.features if n_features is None else n_features
-    translator = Translator(n, cfg.generator)
-    return Models(translator, MsImageDis(n + 3, cfg.discriminator), MsImageDis(3, cfg.discriminator))

@@ -10,6 +10,10 @@ This folder holds, beside this module:
   hash of every scene's geometry (:meth:`sim2real.scene.scene.Scene.geometry_hash`), how it was
   trained, what it scored, and reference values of two translated frames of the demo's test path.
 * ``demo_model_check.txt``: those two frames' cameras (a trajectory file).
+* ``demo_model.yaml``: the model's training configuration, readable: the named preset it was
+  trained with (:data:`PRESET`). It differs from the configuration inside the checkpoint at most
+  in :data:`RUN_KEYS`, where and how long a run goes, not what it learns
+  (``tests/test_shipped.py`` checks both). ``sim2real train --init-from shipped`` takes it over.
 
 :func:`pack` makes the three files from a finished run; ``python -m sim2real.shipped`` is its
 command.
@@ -22,13 +26,33 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import torch
 
+from sim2real.config import differences, save_yaml, to_dict
+from sim2real.engine.checkpoint import (
+    FORMAT as CKPT_FORMAT,
+    LAST,
+    find_run_checkpoint,
+    load_checkpoint,
+    save_checkpoint,
+)
 from sim2real.errors import UserError
+from sim2real.fileio import atomic_path, atomic_write_json, read_json
+from sim2real.inference.translate import load_run
+from sim2real.presets import config_from_dict, preset
+from sim2real.render.raycast import RayCaster
+from sim2real.scene.scene import Scene
+from sim2real.scene.trajectory import Trajectory, make_trajectory
 
 HERE = Path(__file__).resolve().parent
 MODEL = "demo_model.pt"
 RECORD = "demo_model.json"
 CHECK_TRAJECTORY = "demo_model_check.txt"
+CONFIG = "demo_model.yaml"
+PRESET = "cpu-lines"
+"""The named preset (:mod:`sim2real.presets`) of the shipped model's training."""
+RUN_KEYS = ("device", "iterations")
+"""Config keys that say where and how long a run goes; a packed run may differ from its preset there."""
 FORMAT = "sim2real-shipped/1"
 HALF_MIN = 1024
 """Tensors with at least this many elements are stored in fp16."""
@@ -38,6 +62,21 @@ THUMB = (16, 32)
 
 def model_path(root: Path = HERE) -> Path:
     return root / MODEL
+
+
+def config_path(root: Path = HERE) -> Path:
+    return root / CONFIG
+
+
+def write_config(run_config: dict, preset_name: str, out: Path = HERE) -> None:
+    """Write ``demo_model.yaml``: preset ``preset_name``, after checking that the run's config (a
+    plain dict) equals it outside :data:`RUN_KEYS`; a run trained otherwise is refused, naming the
+    keys (make a preset of its recipe first)."""
+    want = preset(preset_name, type(config_from_dict(run_config).method).name)
+    diff = [k for k, _, _ in differences(config_from_dict(run_config), want) if k not in RUN_KEYS]
+    if diff:
+        raise UserError(f"the run was not trained with preset '{preset_name}': it differs in {', '.join(diff)}")
+    save_yaml(want, out / CONFIG)
 
 
 def init_source(value: str | os.PathLike) -> str | os.PathLike:
@@ -51,8 +90,6 @@ def init_source(value: str | os.PathLike) -> str | os.PathLike:
 
 def load_record(root: Path = HERE) -> dict:
     """The shipped model's record; one clear error when this installation has none."""
-    from sim2real.fileio import read_json
-
     if not (root / MODEL).is_file() or not (root / RECORD).is_file():
         raise UserError(f"no shipped demo model in {root}; run 'sim2real demo --train' to train one")
     record = read_json(root / RECORD, "shipped model record")
@@ -63,16 +100,12 @@ def load_record(root: Path = HERE) -> dict:
 
 def scene_hashes(scenes) -> list[str]:
     """Geometry hashes of ``scenes`` (:class:`Scene` objects or scene folders)."""
-    from sim2real.scene.scene import Scene
-
     return [(s if isinstance(s, Scene) else Scene.load(s)).geometry_hash() for s in scenes]
 
 
 def check_scenes(record: dict, scenes) -> None:
     """Refuse scenes (objects or folders) whose geometry is not the geometry the shipped textures
     were trained on."""
-    from sim2real.scene.scene import Scene
-
     want = record["scene_hashes"]
     got = scene_hashes(scenes)
     if len(got) != len(want):
@@ -94,10 +127,6 @@ def thumbnail(frame: np.ndarray) -> np.ndarray:
 
 def reference_frames(model, scene_dir: Path, trajectory: Path) -> list[np.ndarray]:
     """The translated frames of the check trajectory (ray-cast here, translated as unrelated views)."""
-    from sim2real.render.raycast import RayCaster
-    from sim2real.scene.scene import Scene
-    from sim2real.scene.trajectory import Trajectory
-
     scene = Scene.load(scene_dir)
     caster = RayCaster(scene)
     gbuffers = [caster.render(cam) for cam in Trajectory.load(trajectory).cameras]
@@ -108,30 +137,23 @@ def _halved(state: dict) -> dict:
     return {k: v.half() if v.is_floating_point() and v.numel() >= HALF_MIN else v for k, v in state.items()}
 
 
-def pack(run_dir: Path, seed: int, scores: dict, out: Path = HERE, frames: int = 100) -> dict:
+def pack(run_dir: Path, seed: int, scores: dict, out: Path = HERE, frames: int = 100,
+         preset_name: str = PRESET) -> dict:
     """Make the shipped files in ``out`` from the finished run ``run_dir``, trained on the embedded
-    data of seed ``seed`` (its scene folders must still exist). ``scores``: what the run scored and,
-    under ``trained``, how it was trained (kept in the record). Returns the record."""
-    import torch
-
-    from sim2real.config import TrainConfig, from_dict, to_dict
-    from sim2real.engine.checkpoint import FORMAT as CKPT_FORMAT, find_run_checkpoint, load_checkpoint, save_checkpoint
-    from sim2real.fileio import atomic_write_json
-    from sim2real.inference.translate import load_run
-    from sim2real.render.raycast import RayCaster
-    from sim2real.scene.scene import Scene
-    from sim2real.scene.trajectory import Trajectory, make_trajectory
-
+    data of seed ``seed`` (its scene folders must still exist) with preset ``preset_name``.
+    ``scores``: what the run scored and, under ``trained``, how it was trained (kept in the
+    record). Returns the record."""
     src = find_run_checkpoint(run_dir)
     state = load_checkpoint(src)
     scene_dirs = [Path(s["scene_dir"]) for s in state["scenes"]]
-    cfg = to_dict(from_dict(TrainConfig, state["config"]))  # in today's keys (an older run migrates)
+    cfg = to_dict(config_from_dict(state["config"]))  # in today's keys (an older run migrates)
     h, w = cfg["data"]["height"], cfg["data"]["width"]
     shipped = {"format": CKPT_FORMAT, "step": state["step"], "config": cfg, "method": state["method"],
                "inputs": {"scenes": [s["name"] for s in state["scenes"]], "real": "stand-in real domain"},
                "scenes": [{**s, "scene_dir": None, "views": None} for s in state["scenes"]],
                "gen": _halved(state["gen"]), "dis": _halved(state["dis"]), "world_size": state.get("world_size", 1)}
     out.mkdir(parents=True, exist_ok=True)
+    write_config(cfg, preset_name, out)
     tmp = out / (MODEL + ".new")
     save_checkpoint(tmp, shipped)
     # the reference values come from the packed (fp16-rounded) model on the CPU
@@ -146,7 +168,7 @@ def pack(run_dir: Path, seed: int, scores: dict, out: Path = HERE, frames: int =
         "scene_seed": seed, "scenes": len(scene_dirs), "scene_names": [s["name"] for s in state["scenes"]],
         "scene_hashes": scene_hashes(scene_dirs), "real_seed": seed,
         "height": h, "width": w, "steps": int(state["step"]), "method": state["method"],
-        "trained": scores.pop("trained", None), "scores": scores,
+        "preset": preset_name, "trained": scores.pop("trained", None), "scores": scores,
         "reference": {"frames": thumbs, "thumbnail": list(THUMB), "device": "cpu", "torch": torch.__version__},
     }
     atomic_write_json(out / RECORD, record)
@@ -156,9 +178,6 @@ def pack(run_dir: Path, seed: int, scores: dict, out: Path = HERE, frames: int =
 def install_run(run_dir: Path, root: Path = HERE) -> Path:
     """Copy the shipped checkpoint to ``run_dir/checkpoints/last.pt``, so that the demo's output
     holds a run folder that ``translate``, ``evaluate`` and ``train --init-from`` accept."""
-    from sim2real.engine.checkpoint import LAST
-    from sim2real.fileio import atomic_path
-
     dst = Path(run_dir) / "checkpoints" / LAST
     dst.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(dst) as tmp:
