@@ -10,7 +10,7 @@ import sys
 
 from sim2real.errors import UserError
 
-COMMANDS = ("scene", "render", "realdomain", "train", "translate", "evaluate", "demo", "benchmark")
+COMMANDS = ("scene", "render", "realdomain", "realset", "train", "translate", "evaluate", "demo", "benchmark")
 """Modules of :mod:`sim2real.cli`, each exposing ``register(subparsers)``."""
 
 

@@ -1,4 +1,5 @@
-"""Unlabeled real images (domain B): a folder searched recursively for PNG/JPEG files.
+"""Unlabeled real images (domain B): a real set made by ``sim2real realset`` (frames with
+content masks), or a folder searched recursively for PNG/JPEG files.
 
 Each training iteration takes one image, resizes it so that it covers ``height x width``
 times a random factor in ``[scale_min, scale_max]`` (aspect ratio kept), and crops a random
@@ -14,7 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2real.data.cover import ValidArea, random_cover_crops
 from sim2real.errors import UserError
+from sim2real.fileio import atomic_write_json, read_json_or_none
+from sim2real.footage.manifest import is_realset, load_mask, read_manifest
 
 EXTENSIONS = (".png", ".jpg", ".jpeg")
 
@@ -72,28 +76,18 @@ def to_rgb(im) -> np.ndarray:
 
 
 def random_resized_crop(image: np.ndarray, height: int, width: int, scale_min: float, scale_max: float,
-                        rng: np.random.Generator) -> np.ndarray:
+                        rng: np.random.Generator, valid: ValidArea | None = None) -> np.ndarray:
     """Resize ``image`` (h, w, 3) uint8 by ``max(height / h, width / w) * U[scale_min, scale_max]``
-    (bilinear, area-filtered when shrinking) and crop a random ``height x width`` window."""
-    return random_resized_crops([image], height, width, scale_min, scale_max, rng)[0]
+    (bilinear, area-filtered when shrinking) and crop a random ``height x width`` window; inside
+    the content mask ``valid`` where given (:mod:`sim2real.data.cover`)."""
+    return random_cover_crops([image], height, width, scale_min, scale_max, rng, valid)[0]
 
 
 def random_resized_crops(images: list[np.ndarray], height: int, width: int, scale_min: float, scale_max: float,
                          rng: np.random.Generator) -> list[np.ndarray]:
     """:func:`random_resized_crop` with one draw of scale and window for all ``images`` (frames of
     one size, e.g. consecutive frames of a sequence, which must stay aligned)."""
-    from PIL import Image
-
-    h, w = images[0].shape[:2]
-    if any(im.shape[:2] != (h, w) for im in images):
-        raise UserError(f"frames of one sequence differ in size: {sorted({im.shape[:2] for im in images})}")
-    factor = max(height / h, width / w) * float(rng.uniform(scale_min, scale_max))
-    new_h, new_w = max(height, round(h * factor)), max(width, round(w * factor))
-    if (new_h, new_w) != (h, w):
-        images = [np.asarray(Image.fromarray(im).resize((new_w, new_h), Image.BILINEAR)) for im in images]
-    top = int(rng.integers(0, new_h - height + 1))
-    left = int(rng.integers(0, new_w - width + 1))
-    return [im[top : top + height, left : left + width] for im in images]
+    return random_cover_crops(images, height, width, scale_min, scale_max, rng)
 
 
 def to_network(crop: np.ndarray) -> np.ndarray:
@@ -101,22 +95,99 @@ def to_network(crop: np.ndarray) -> np.ndarray:
     return (crop.astype(np.float32).transpose(2, 0, 1) / 127.5) - 1.0
 
 
-class RealImages:
-    """The real-image pool: file list checked at construction, random crops on demand."""
+INDEX = "real_index.json"
+"""The index of a plain real folder that training writes into its run folder: the image files,
+listed and checked once; a resumed run reads it instead of checking every image again. It is
+rebuilt when the folder, or the modification time of a directory that holds its images, changed
+(an image added, removed or renamed)."""
+INDEX_FORMAT = "sim2real-real-index/1"
 
-    def __init__(self, folder: str | os.PathLike, verify: bool = True):
+
+def _dir_stamps(root: Path, files: list[Path]) -> dict[str, int]:
+    dirs = sorted({root, *(f.parent for f in files)})
+    return {str(d.relative_to(root)): d.stat().st_mtime_ns for d in dirs}
+
+
+def _read_index(path: Path, root: Path) -> list[Path] | None:
+    """The files of a still valid index at ``path`` for ``root``, else None."""
+    idx = read_json_or_none(path)
+    if not idx or idx.get("format") != INDEX_FORMAT or idx.get("root") != str(root):
+        return None
+    try:
+        stamps = {d: (root / d).stat().st_mtime_ns for d in idx["dirs"]}
+    except (OSError, KeyError, TypeError):
+        return None
+    if stamps != idx["dirs"]:
+        return None
+    return [root / f for f in idx["files"]]
+
+
+class RealImages:
+    """The real-image pool (domain B) with random crops on demand, from either
+
+    - a **real set** (``sim2real realset``; :mod:`sim2real.footage.manifest`): its training
+      split's frames, each cropped inside its source's content mask, so that no crop shows the
+      endoscope's dark surround or an overlay; or
+    - a **plain folder** of PNG/JPEG images (searched recursively, every image used whole). Its
+      files are listed and checked once; with ``index`` (a path in the run folder, see
+      :data:`INDEX`) that list is kept for the run's next start. :meth:`save_index` writes it.
+    """
+
+    def __init__(self, folder: str | os.PathLike, verify: bool = True, index: str | os.PathLike | None = None):
         self.folder = Path(folder)
+        self.index_path = Path(index) if index is not None else None
+        self._new_index: dict | None = None
+        self.masks: list[str | None] = []
+        self._mask_files: dict[str, Path] = {}
+        self._valid: dict[str, ValidArea] = {}
+        if is_realset(self.folder):
+            m = read_manifest(self.folder)
+            frames = [f for f in m["frames"] if f["split"] == "train"] or m["frames"]
+            self.files = [self.folder / f["file"] for f in frames]
+            self.masks = [f["mask"] for f in frames]
+            self._mask_files = {s["id"]: self.folder / s["mask"] for s in m["sources"] if s.get("mask")}
+            self.realset = True
+            if not self.files:
+                raise UserError(f"the real set {self.folder} holds no frames")
+            return
+        self.realset = False
+        root = self.folder.resolve()
+        cached = _read_index(self.index_path, root) if self.index_path is not None and self.index_path.is_file() else None
+        if cached is not None:
+            self.files = cached
+            return
         self.files = list_images(folder)
         if verify:
             verify_images(self.files)
+        if self.index_path is not None:
+            rfiles = [f.resolve() for f in self.files]
+            self._new_index = {"format": INDEX_FORMAT, "root": str(root),
+                               "dirs": _dir_stamps(root, rfiles),
+                               "files": [str(f.relative_to(root)) for f in rfiles]}
+
+    def save_index(self) -> None:
+        """Write the index of a plain folder listed by this construction into ``index``."""
+        if self._new_index is not None and self.index_path is not None:
+            atomic_write_json(self.index_path, self._new_index)
+            self._new_index = None
 
     def __len__(self) -> int:
         return len(self.files)
 
+    def valid_area(self, i: int) -> ValidArea | None:
+        """The content mask of image ``i`` (loaded once per source and process), None for a plain folder."""
+        if not self.masks:
+            return None
+        mid = self.masks[i]
+        if mid not in self._valid:
+            self._valid[mid] = ValidArea(load_mask(self._mask_files[mid]))
+        return self._valid[mid]
+
     def sample(self, rng: np.random.Generator, height: int, width: int, scale_min: float, scale_max: float) -> np.ndarray:
         """A random crop as float32 (3, height, width) in [-1, 1]."""
-        path = self.files[int(rng.integers(0, len(self.files)))]
-        return to_network(random_resized_crop(load_rgb(path), height, width, scale_min, scale_max, rng))
+        i = int(rng.integers(0, len(self.files)))
+        return to_network(random_resized_crop(load_rgb(self.files[i]), height, width, scale_min, scale_max, rng,
+                                              self.valid_area(i)))
 
 
 SEQUENCES = "sequences"

@@ -9,6 +9,7 @@ from typing import Sequence
 
 import numpy as np
 
+from sim2real.data.cover import fit_image  # noqa: F401  (the evaluation resizes real images with it)
 from sim2real.errors import UserError
 
 
@@ -47,21 +48,6 @@ def find_real(directory: str | os.PathLike) -> RealSet:
         lp = (lab_root / p.relative_to(img_root)).with_suffix(".png")
         labels.append(lp if lab_root.is_dir() and lp.is_file() else None)
     return RealSet(img_root, lab_root, images, labels)
-
-
-def fit_image(image: np.ndarray, height: int, width: int, nearest: bool = False) -> np.ndarray:
-    """Resize so that ``image`` covers ``height x width`` (aspect kept), then crop the centre."""
-    from PIL import Image
-
-    h, w = image.shape[:2]
-    if (h, w) == (height, width):
-        return image
-    s = max(height / h, width / w)
-    nh, nw = max(height, round(h * s)), max(width, round(w * s))
-    resample = Image.NEAREST if nearest else Image.BILINEAR
-    im = np.asarray(Image.fromarray(image).resize((nw, nh), resample))
-    top, left = (nh - height) // 2, (nw - width) // 2
-    return np.ascontiguousarray(im[top:top + height, left:left + width])
 
 
 def load_label(path: Path) -> np.ndarray:

@@ -1,0 +1,80 @@
+"""``sim2real realset``: make a real set (domain B) from the user's own footage.
+
+    sim2real realset SRC [SRC ...] --out REAL [--height H] [--fps F] [--max-frames N]
+                     [--held-out FRACTION] [--dup-distance BITS] [--min-content FRACTION]
+                     [--labels DIR --label-map FILE] [--format jpg|png] [--seed S]
+
+SRC: video files (mp4, avi, mkv, mov, ...; ``VIDEO@START-END`` takes a time range, seconds or
+[h:]mm:ss) and folders of frames (each sub-folder with frames is a source), mixed. Frames are
+cropped to the endoscope's content area, masked where it has overlays, stored with their short
+side at H, and filtered (dark, overexposed, near-duplicate, too little content); the split into
+train and held-out is by source. ``REAL`` is what ``--real`` of train and evaluate takes
+(docs/footage.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from sim2real.cli.args import non_negative_float, positive_float, positive_int
+
+
+def _fraction(text: str) -> float:
+    v = non_negative_float(text)
+    if v >= 1:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), got '{text}'")
+    return v
+
+
+def _distance(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer from -1 to 64, got '{text}'") from None
+    if not -1 <= v <= 64:
+        raise argparse.ArgumentTypeError(f"expected an integer from -1 to 64, got '{text}'")
+    return v
+
+
+def register(sub) -> None:
+    p = sub.add_parser("realset", help="make a real set (domain B) from videos and folders of frames",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("sources", nargs="+", metavar="SRC", help="video files (VIDEO@START-END for a range) or frame folders")
+    p.add_argument("--out", required=True, help="new output folder")
+    p.add_argument("--height", type=positive_int, default=512,
+                   help="short side of the stored frames, never enlarged (default 512: the largest training height "
+                        "planned; a circular view needs about twice the crop height)")
+    p.add_argument("--fps", type=positive_float, default=5.0, help="frames per second sampled from videos (default 5)")
+    p.add_argument("--max-frames", type=positive_int, default=None, metavar="N", help="at most N sampled frames per source")
+    p.add_argument("--held-out", type=_fraction, default=0.2, metavar="FRACTION",
+                   help="share of the sources held out from training (default 0.2; at least one of two or more)")
+    p.add_argument("--dup-distance", type=_distance, default=4, metavar="BITS",
+                   help="perceptual-hash distance (of 64 bits) up to which a frame is a near-duplicate "
+                        "(default 4; -1 keeps them)")
+    p.add_argument("--min-content", type=_fraction, default=0.25, metavar="FRACTION",
+                   help="sources whose content area is below this share of the frame are dropped (default 0.25)")
+    p.add_argument("--labels", default=None, metavar="DIR", help="class-id masks, mirroring the SRC folders' layout")
+    p.add_argument("--label-map", default=None, metavar="FILE",
+                   help="JSON: dataset class id -> project class name or null")
+    p.add_argument("--format", choices=("jpg", "png"), default="jpg", help="stored frames (default jpg, quality 95)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the held-out choice (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from sim2real.footage.build import Settings, build_realset  # only this command needs PyAV and OpenCV
+
+    settings = Settings(height=args.height, fps=args.fps, max_frames=args.max_frames, held_out=args.held_out,
+                        dup_distance=args.dup_distance, min_content=args.min_content, image_format=args.format,
+                        labels=args.labels, label_map=args.label_map, seed=args.seed)
+    m = build_realset(args.sources, args.out, settings, progress=not args.quiet)
+    for src in m["sources"]:
+        drops = ", ".join(f"{k} {v}" for k, v in src["dropped"].items() if v) or "none"
+        print(f"{src['id']}: {src['kind']} {src['frame_size'][1]}x{src['frame_size'][0]}, {src['shape']} view, "
+              f"content {src['content_fraction']:.0%} (overlay {src['overlay_fraction']:.1%}), {src['split']}: "
+              f"kept {src['kept']}, dropped {drops}")
+    drops = ", ".join(f"{k} {v}" for k, v in m["dropped"].items())
+    labelled = sum(1 for f in m["frames"] if f["label"])
+    print(f"kept {m['kept']} frames ({labelled} labelled); dropped: {drops}; written to {args.out}")
+    return 0
