@@ -46,7 +46,7 @@ import torch
 from sim2real.config import AUTO_WORKERS_MAX, TrainConfig, to_dict
 from sim2real.validation import validate
 from sim2real.data.datasets import StepSampler, make_dataset, resolve_scenes
-from sim2real.data.real import RealImages
+from sim2real.data.real import INDEX as REAL_INDEX, RealImages
 from sim2real.engine import checkpoint as ckpt
 from sim2real.engine import distributed, precision
 from sim2real.engine.observe import Observer
@@ -76,9 +76,11 @@ def _state_method(state: dict) -> str:
 
 
 def _remove_if_only_lock(out: Path) -> None:
-    """Remove a run folder that holds nothing but its lock file (a fresh run that never started)."""
+    """Remove a run folder that holds nothing but its lock file (a fresh run that never started)
+    and the index of its real folder."""
     try:
-        if {p.name for p in out.iterdir()} <= {LOCK_NAME}:
+        if {p.name for p in out.iterdir()} <= {LOCK_NAME, REAL_INDEX}:
+            (out / REAL_INDEX).unlink(missing_ok=True)
             (out / LOCK_NAME).unlink(missing_ok=True)
             out.rmdir()
     except OSError:
@@ -177,7 +179,7 @@ class Trainer:
             torch.backends.cudnn.benchmark = not cfg.deterministic
 
         self.sources = resolve_scenes(scenes, cfg.data.height, cfg.data.width)
-        self.real = RealImages(real)
+        self.real = RealImages(real, index=Path(out) / REAL_INDEX)  # a plain folder is checked once per run
         # the method's training data (a real folder without what it needs is refused here, before
         # the run folder is touched)
         self.dataset = make_dataset(self.method.data, self.sources, self.real, cfg.data, cfg.seed, self.dist.rank)
@@ -187,6 +189,8 @@ class Trainer:
         # rank 0 takes the run folder; a refusal there is raised on every rank, before any trains
         distributed.on_main(self.dist, lambda: self._take_run_folder(state, resume))
         try:
+            if self.dist.is_main:
+                self.real.save_index()
             self._build(state, resume, progress, init_state)
         except BaseException:
             self.lock.release()

@@ -1,0 +1,103 @@
+"""The training's real-image pool: crops inside a real set's content mask, the index of a plain
+folder kept in the run folder, and the one cover-resize."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sim2real.cli.main import main
+from sim2real.data.cover import ValidArea, fit_image, random_cover_crops
+from sim2real.data.real import INDEX, RealImages
+from sim2real.errors import UserError
+
+H, W = 120, 200
+
+
+def reddish(seed: int) -> np.ndarray:
+    """Content whose red channel is always 150 or more, so that any masked (black) pixel blended
+    into a crop shows as red below 150."""
+    rng = np.random.default_rng(seed)
+    img = np.empty((H, W, 3), np.uint8)
+    img[..., 0] = rng.integers(150, 256, (H, W))
+    img[..., 1:] = rng.integers(40, 120, (H, W, 2))
+    return img
+
+
+def test_crops_from_a_masked_real_set_never_hold_masked_pixels(tmp_path, capsys):
+    yy, xx = np.mgrid[:H, :W]
+    for i in range(4):
+        img = reddish(i)
+        img[(yy + 0.5 - 60) ** 2 + (xx + 0.5 - 100) ** 2 > 55 ** 2] = 0  # circular view, black surround
+        img[100:112, 60:140] = (20, 20, 20)  # and a static dark bar inside it
+        Image.fromarray(img).save(tmp_path / f"f{i}.png")
+    assert main(["realset", str(tmp_path), "--out", str(tmp_path / "real"), "--format", "png",
+                 "--dup-distance", "-1", "--quiet"]) == 0
+    capsys.readouterr()
+    pool = RealImages(tmp_path / "real")
+    assert pool.realset and len(pool) == 4
+    mask = pool.valid_area(0).mask
+    assert not mask.all() and mask.mean() > 0.4  # the set is masked (surround and bar)
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        crop = pool.sample(rng, 32, 64, 1.0, 1.3)
+        red = (crop[0] + 1) * 127.5
+        assert red.min() >= 149.5
+    # without the mask the same frames give crops with surround in them
+    plain = RealImages(tmp_path / "real" / "images")
+    reds = [((plain.sample(rng, 32, 64, 1.0, 1.3)[0] + 1) * 127.5).min() for _ in range(20)]
+    assert min(reds) < 100
+
+
+def test_valid_area_window_fits_and_varies():
+    mask = np.zeros((100, 100), bool)
+    mask[20:80, 10:90] = True  # a 60 x 80 content rectangle
+    va = ValidArea(mask)
+    k = va.inscribed_scale(10, 20)  # 2:1 windows: at most 80 wide (less the filter's reach)
+    assert 3.5 < k < 4.0
+    rng = np.random.default_rng(1)
+    boxes = [va.draw(10, 20, 1.5, rng) for _ in range(30)]
+    for l, t, r, b in boxes:
+        assert 10 <= l - 1 and r + 1 <= 90 and 20 <= t - 1 and b + 1 <= 80
+        assert (r - l) / (b - t) == pytest.approx(2.0)
+    assert len({(round(l), round(t)) for l, t, _, _ in boxes}) > 5
+
+
+def test_plain_folder_is_indexed_once_into_the_run_folder(tmp_path):
+    real, run = tmp_path / "real", tmp_path / "run"
+    real.mkdir()
+    run.mkdir()
+    for i in range(3):
+        Image.fromarray(reddish(i)).save(real / f"{i}.png")
+    pool = RealImages(real, index=run / INDEX)
+    pool.save_index()
+    idx = json.loads((run / INDEX).read_text())
+    assert idx["files"] == ["0.png", "1.png", "2.png"]
+    # an image damaged afterwards is not checked again on the next start (the index is used) ...
+    (real / "1.png").write_bytes(b"damaged")
+    again = RealImages(real, index=run / INDEX)
+    assert [p.name for p in again.files] == ["0.png", "1.png", "2.png"]
+    # ... but a folder that changed (an image added) is listed and checked anew
+    Image.fromarray(reddish(9)).save(real / "3.png")
+    with pytest.raises(UserError, match="1.png"):
+        RealImages(real, index=run / INDEX)
+
+
+def test_cover_resize_equals_resizing_the_whole_image():
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (90, 170, 3), dtype=np.uint8)
+    # reference: resize the whole image to cover 40 x 100 (factor 100 / 170), crop the centre
+    nw, nh = 100, round(90 * 100 / 170)
+    whole = np.asarray(Image.fromarray(img).resize((nw, nh), Image.BILINEAR))
+    top = (nh - 40) // 2
+    ref = whole[top:top + 40]
+    out = fit_image(img, 40, 100)
+    assert out.shape == (40, 100, 3) and np.abs(out.astype(int) - ref).max() <= 2
+    # random crops at factor 1 with a full-width target see the full width
+    half = np.zeros((100, 100, 3), np.uint8)
+    half[:, 50:] = 255
+    crop = random_cover_crops([half], 32, 64, 1.0, 1.0, rng)[0]
+    assert crop[:, :20].max() < 10 and crop[:, -20:].min() > 245
