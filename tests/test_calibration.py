@@ -121,7 +121,7 @@ def test_dice_is_stable_over_segmenter_seeds_and_cached(demo_scene, tmp_path):
     second evaluation of the same real folder loads them from the cache."""
     from sim2real.inference.dice import dice_of, segmenters
     from sim2real.inference.evaluate import EvalSettings, find_real
-    from sim2real.inference.realset import fit_image
+    from sim2real.inference.realimages import fit_image
     from sim2real.realdomain import make_real_domain
     from sim2real.scene.trajectory import sample_poses
 

@@ -18,7 +18,7 @@ import numpy as np
 from sim2real.data.cover import ValidArea, random_cover_crops
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, read_json_or_none
-from sim2real.footage.manifest import is_realset, load_mask, read_manifest
+from sim2real.data.real_manifest import is_realset, load_mask, read_manifest
 
 EXTENSIONS = (".png", ".jpg", ".jpeg")
 
@@ -125,7 +125,7 @@ def _read_index(path: Path, root: Path) -> list[Path] | None:
 class RealImages:
     """The real-image pool (domain B) with random crops on demand, from either
 
-    - a **real set** (``sim2real realset``; :mod:`sim2real.footage.manifest`): its training
+    - a **real set** (``sim2real realset``; :mod:`sim2real.data.real_manifest`): its training
       split's frames, each cropped inside its source's content mask, so that no crop shows the
       endoscope's dark surround or an overlay; or
     - a **plain folder** of PNG/JPEG images (searched recursively, every image used whole). Its

@@ -5,6 +5,7 @@ frames into a real set that training and evaluation read (docs/footage.md).
 - :mod:`~sim2real.footage.content`: the content area (field of view, overlays) as a mask and a box
 - :mod:`~sim2real.footage.filters`: dark, overexposed and near-duplicate frames
 - :mod:`~sim2real.footage.labels`: class-id masks mapped onto the project's classes
-- :mod:`~sim2real.footage.manifest`: the real set's layout and manifest
 - :mod:`~sim2real.footage.build`: the command's pipeline (temporary folder, then rename)
+
+The real set's layout and manifest, which training reads too, are :mod:`sim2real.data.real_manifest`.
 """

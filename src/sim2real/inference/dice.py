@@ -58,7 +58,7 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
     import torch
 
     from sim2real.fileio import atomic_write_bytes, atomic_write_json
-    from sim2real.inference.realset import load_segmentation_set
+    from sim2real.inference.realimages import load_segmentation_set
     from sim2real.metrics.realism import dice as dice_score
     from sim2real.metrics.segmenter import LiverUNet, predict, train_segmenter
 
@@ -127,7 +127,7 @@ def dice_of(models: list, frames: Sequence[np.ndarray], gt: np.ndarray, s) -> di
     against ``gt`` (N, h, w) bool at the segmenter's size."""
     import torch
 
-    from sim2real.inference.realset import fit_image
+    from sim2real.inference.realimages import fit_image
     from sim2real.metrics.realism import dice as dice_score
     from sim2real.metrics.segmenter import predict
 

@@ -48,7 +48,7 @@ from typing import Sequence
 import numpy as np
 
 from sim2real.errors import UserError
-from sim2real.inference.realset import find_real, fit_image, to_nchw
+from sim2real.inference.realimages import find_real, fit_image, to_nchw
 from sim2real.inference.rows import PAPER_KS, ROWS, pool_rows, positions, scalars
 
 FORMAT = "sim2real-evaluation/2"

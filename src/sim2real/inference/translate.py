@@ -136,7 +136,7 @@ class TrainedModel:
             b = self.method.inference_batch(chunk, info.index, self.device)
             r = None
             if real is not None:
-                from sim2real.inference.realset import to_nchw
+                from sim2real.inference.realimages import to_nchw
 
                 r = (to_nchw([np.asarray(x) for x in real[i : i + batch]]).to(self.device) / 127.5) - 1.0
             with precision.autocast(self.device, self.amp):

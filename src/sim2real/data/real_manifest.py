@@ -1,4 +1,4 @@
-"""The manifest of a real set (``REAL/manifest.json``), written by ``sim2real realset`` and read
+"""The layout and manifest of a real set (``REAL/manifest.json``), written by ``sim2real realset`` and read
 by training and evaluation.
 
 Layout of a real set::

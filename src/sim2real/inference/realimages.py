@@ -1,4 +1,5 @@
-"""Real images for the evaluation: the folder layout, labels, and resizing to a metric's size."""
+"""Real images for the evaluation: the folder layout (a real set of `sim2real realset` has it too),
+labels, and resizing to a metric's size (the one cover-resize, :mod:`sim2real.data.cover`)."""
 
 from __future__ import annotations
 
