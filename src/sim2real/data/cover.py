@@ -62,7 +62,8 @@ def random_cover_crops(images: list[np.ndarray], height: int, width: int, scale_
     """One random window for all ``images`` (frames of one size that must stay aligned): the
     images scaled by ``max(height / h, width / w) * U[scale_min, scale_max]`` and cut at a random
     position. With ``valid`` the factor is relative to the largest window inside the mask and
-    the window lies inside it (module docstring)."""
+    the window lies inside it (module docstring); a factor below 1 is raised to 1 there (it would
+    need pixels outside the mask)."""
     h, w = images[0].shape[:2]
     if any(im.shape[:2] != (h, w) for im in images):
         raise UserError(f"frames of one sequence differ in size: {sorted({im.shape[:2] for im in images})}")

@@ -142,13 +142,13 @@ class RealImages:
         self._valid: dict[str, ValidArea] = {}
         if is_realset(self.folder):
             m = read_manifest(self.folder)
-            frames = [f for f in m["frames"] if f["split"] == "train"] or m["frames"]
+            frames = [f for f in m["frames"] if f["split"] == "train"]
+            if not frames:
+                raise UserError(f"the real set {self.folder} holds no training frames (all {len(m['frames'])} are held out)")
             self.files = [self.folder / f["file"] for f in frames]
             self.masks = [f["mask"] for f in frames]
             self._mask_files = {s["id"]: self.folder / s["mask"] for s in m["sources"] if s.get("mask")}
             self.realset = True
-            if not self.files:
-                raise UserError(f"the real set {self.folder} holds no frames")
             return
         self.realset = False
         root = self.folder.resolve()

@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from sim2real.errors import UserError
 from sim2real.footage import content, filters, labels as labelling
-from sim2real.footage.decode import Source, find_sources, iter_frames
+from sim2real.footage.decode import Source, expected_frames, find_sources, iter_frames
 from sim2real.data.real_manifest import FORMAT, write_manifest
 from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND
 
@@ -103,7 +103,7 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
     return manifest
 
 
-def _first_pass(src: Source, s: Settings) -> tuple[content.FrameStats, list | None, int]:
+def _first_pass(src: Source, s: Settings, progress: bool) -> tuple[content.FrameStats, list | None, int]:
     """Frame statistics, the sampled frames when they fit the buffer (videos), and their count."""
     stats = content.FrameStats()
     if src.kind == "frames":
@@ -113,7 +113,9 @@ def _first_pass(src: Source, s: Settings) -> tuple[content.FrameStats, list | No
             stats.add(fr.image)
         return stats, None, n
     buf, size, n = [], 0, 0
-    for fr in iter_frames(src, s.fps, s.max_frames):
+    frames = tqdm(iter_frames(src, s.fps, s.max_frames), total=expected_frames(src, s.fps, s.max_frames),
+                  desc=f"{src.id}: content area", unit="frame", disable=not progress, leave=False)
+    for fr in frames:
         stats.add(fr.image)
         n += 1
         if buf is not None:
@@ -139,7 +141,7 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
     dropped_all: Counter = Counter()
     dups = filters.DuplicateIndex(s.dup_distance)
     for src in sources:
-        stats, buf, n = _first_pass(src, s)
+        stats, buf, n = _first_pass(src, s, progress)
         if n == 0 or stats.n == 0:
             raise UserError(f"source {src.path} yields no frames")
         area = content.detect(stats)

@@ -159,6 +159,22 @@ def read_image(path: Path) -> np.ndarray:
         raise UserError(f"cannot read frame {path}: {e}") from None
 
 
+def expected_frames(source: Source, fps: float, max_frames: int | None = None) -> int | None:
+    """How many frames :func:`iter_frames` will give, as far as the container tells (for progress)."""
+    if source.kind == "frames":
+        n = len(source.files)
+    else:
+        try:
+            with av.open(str(source.path)) as c:
+                d = _duration(c, c.streams.video[0]) if c.streams.video else None
+        except (av.FFmpegError, OSError, ValueError):
+            return None
+        if d is None:
+            return None
+        n = math.ceil((min(d, source.end) - source.start) * fps)
+    return min(n, max_frames) if max_frames else n
+
+
 def iter_frames(source: Source, fps: float, max_frames: int | None = None,
                 pick: set[int] | None = None) -> Iterator[Frame]:
     """The sampled frames of ``source`` in order (``pick``: only these sample indices, read
