@@ -10,7 +10,7 @@ from typing import Sequence
 
 import numpy as np
 
-from sim2real.data.cover import fit_image  # noqa: F401  (the evaluation resizes real images with it)
+from sim2real.data.cover import fit_image
 from sim2real.errors import UserError
 
 
