@@ -68,6 +68,23 @@ def test_single_frame_circle_and_dark_tissue_inside():
     assert area.mask[55:65, 95:105].all()
 
 
+def test_a_frame_whose_view_moved_gets_its_own_mask_and_box(tmp_path, capsys):
+    src = tmp_path / "frames"
+    for i in range(6):  # the scope moves after frame 3: the circle's centre goes from x=100 to x=135
+        save(src / f"{i:03d}.png", circle_frame(i, cx=100 if i < 4 else 135))
+    code, io = run_cli(["realset", str(src), "--out", str(tmp_path / "real"), "--format", "png",
+                        "--dup-distance", "-1", "--quiet"], capsys)
+    assert code == 0, io.err
+    m = json.loads((tmp_path / "real" / "manifest.json").read_text())
+    assert len(m["frames"]) == 6
+    for f in m["frames"]:
+        mask = np.asarray(Image.open(tmp_path / "real" / "masks" / f"{f['mask']}.png")) > 127
+        img = np.asarray(Image.open(tmp_path / "real" / f["file"]))
+        # each stored frame is its own circle's box (100 px, within a few) and has no surround inside its mask
+        assert abs(img.shape[0] - 100) <= 4 and abs(img.shape[1] - 100) <= 4, (f["index"], img.shape)
+        assert mask.shape == img.shape[:2] and img[mask].max(axis=1).min() >= 60 * 0.9
+
+
 def _bar_frames(n: int, top: int) -> list[np.ndarray]:
     frames = []
     for s in range(n):

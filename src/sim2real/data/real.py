@@ -18,7 +18,7 @@ import numpy as np
 from sim2real.data.cover import ValidArea, random_cover_crops
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, read_json_or_none
-from sim2real.data.real_manifest import is_realset, load_mask, read_manifest
+from sim2real.data.real_manifest import is_realset, load_mask, mask_file, read_manifest
 
 EXTENSIONS = (".png", ".jpg", ".jpeg")
 
@@ -138,7 +138,6 @@ class RealImages:
         self.index_path = Path(index) if index is not None else None
         self._new_index: dict | None = None
         self.masks: list[str | None] = []
-        self._mask_files: dict[str, Path] = {}
         self._valid: dict[str, ValidArea] = {}
         if is_realset(self.folder):
             m = read_manifest(self.folder)
@@ -147,7 +146,6 @@ class RealImages:
                 raise UserError(f"the real set {self.folder} holds no training frames (all {len(m['frames'])} are held out)")
             self.files = [self.folder / f["file"] for f in frames]
             self.masks = [f["mask"] for f in frames]
-            self._mask_files = {s["id"]: self.folder / s["mask"] for s in m["sources"] if s.get("mask")}
             self.realset = True
             return
         self.realset = False
@@ -175,12 +173,12 @@ class RealImages:
         return len(self.files)
 
     def valid_area(self, i: int) -> ValidArea | None:
-        """The content mask of image ``i`` (loaded once per source and process), None for a plain folder."""
+        """The content mask of image ``i`` (loaded once per mask and process), None for a plain folder."""
         if not self.masks:
             return None
         mid = self.masks[i]
         if mid not in self._valid:
-            self._valid[mid] = ValidArea(load_mask(self._mask_files[mid]))
+            self._valid[mid] = ValidArea(load_mask(self.folder / mask_file(mid)))
         return self._valid[mid]
 
     def sample(self, rng: np.random.Generator, height: int, width: int, scale_min: float, scale_max: float) -> np.ndarray:

@@ -9,21 +9,23 @@ Layout of a real set::
       labels/SOURCE/NNNNNN.png      class index per pixel (sim2real.scene.scene.CLASSES order,
                                     255 = background, unmapped or outside the content area)
       masks/SOURCE.png              content mask of the source's frames (255 = content)
+      masks/SOURCE_NNNNNN.png       a frame's own mask, where its view differs from the source's
 
 ``manifest.json``::
 
     {"format": "sim2real-realset/1", "height": H, "classes": [...],
      "sources": [{"id", "path", "kind": "video"|"frames", "split": "train"|"held_out",
                   "frame_size": [h, w], "box": [top, left, bottom, right], "mask": "masks/ID.png",
-                  "content_fraction", "overlay_fraction", "shape", "kept", "dropped": {reason: n}}],
+                  "content_fraction", "overlay_fraction", "shape", "own_mask_frames", "kept",
+                  "dropped": {reason: n}}],
      "frames": [{"file", "source", "index", "time", "size": [h, w], "mask", "phash", "split",
                  "label"}],
      "dropped": {reason: n}, "settings": {...}}
 
 ``index`` counts the source's sampled frames from 0 (frame folders: the file's position in name
 order); ``time`` is the frame's time in seconds (videos; null for frame folders); ``phash`` the
-64-bit perceptual hash (hex) of the content; ``mask`` the source's mask file; ``label`` the label
-file or null.
+64-bit perceptual hash (hex) of the content; ``mask`` the id of the frame's content mask, whose
+file is ``masks/ID.png`` (the source's id, or the frame's own); ``label`` the label file or null.
 """
 
 from __future__ import annotations
@@ -71,6 +73,11 @@ def read_manifest(folder: str | os.PathLike) -> dict:
         if f["source"] not in ids or f["split"] not in SPLITS:
             raise UserError(f"real set manifest {path}: frame {i} names an unknown source or split")
     return m
+
+
+def mask_file(mask_id: str) -> str:
+    """The file of content mask ``mask_id``, relative to the real set."""
+    return f"masks/{mask_id}.png"
 
 
 def write_manifest(folder: str | os.PathLike, manifest: dict) -> None:

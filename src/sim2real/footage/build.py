@@ -31,7 +31,7 @@ from tqdm import tqdm
 from sim2real.errors import UserError
 from sim2real.footage import content, filters, labels as labelling
 from sim2real.footage.decode import Source, expected_frames, find_sources, iter_frames
-from sim2real.data.real_manifest import FORMAT, write_manifest
+from sim2real.data.real_manifest import FORMAT, mask_file, write_manifest
 from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND
 
 STATS_FRAMES = 100
@@ -149,7 +149,7 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
         row = {"id": src.id, "path": str(src.path), "kind": src.kind, "split": splits[src.id],
                "frame_size": list(stats.frame_size), "box": list(area.box), "shape": area.shape,
                "content_fraction": round(area.fraction, 4), "overlay_fraction": round(area.overlay_fraction, 4),
-               "mask": None, "kept": 0, "dropped": dropped}
+               "mask": None, "own_mask_frames": 0, "kept": 0, "dropped": dropped}
         if src.kind == "video":
             row["range"] = [src.start, None if math.isinf(src.end) else src.end]
         source_rows.append(row)
@@ -159,7 +159,7 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
             continue
         h, w = content.stored_size(area.box, s.height)
         mask = content.mask_at(area, h, w)
-        mask_rel = f"masks/{src.id}.png"
+        mask_rel = mask_file(src.id)
         row["mask"] = mask_rel
         (root / "masks").mkdir(exist_ok=True)
         cv2.imwrite(str(root / mask_rel), mask.astype(np.uint8) * 255)
@@ -169,22 +169,33 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
             if fr.image.shape[:2] != tuple(stats.frame_size):
                 raise UserError(f"frames of source {src.path} differ in size ({tuple(stats.frame_size)} and "
                                 f"{fr.image.shape[:2]})")
-            img = area.crop(fr.image)
-            if img.shape[:2] != (h, w):
-                img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-            reason = filters.exposure(img, mask)
+            f_area, f_size, f_mask, mask_id = area, (h, w), mask, src.id
+            own = content.frame_area(fr.image, area, stats.size)
+            if own is not None:  # this frame's view differs from the source's: its own mask and box
+                row["own_mask_frames"] += 1
+                if own.fraction < s.min_content:
+                    dropped["small_content"] += 1
+                    dropped_all["small_content"] += 1
+                    continue
+                f_area, f_size = own, content.stored_size(own.box, s.height)
+                f_mask, mask_id = content.mask_at(own, *f_size), f"{src.id}_{fr.index:06d}"
+            h_, w_ = f_size
+            img = f_area.crop(fr.image)
+            if img.shape[:2] != (h_, w_):
+                img = cv2.resize(img, (w_, h_), interpolation=cv2.INTER_AREA)
+            reason = filters.exposure(img, f_mask)
             lab_rel = None
             if reason is None and label_dir is not None and fr.file is not None:
                 lp = labelling.label_path(label_dir, fr.file, src.root)
                 if lp is not None:
                     lab = labelling.load_label(lp, fr.image.shape[:2], lut)
-                    lab = np.where(area.mask, lab, LABEL_BACKGROUND).astype(np.uint8)
-                    lab = cv2.resize(area.crop(lab), (w, h), interpolation=cv2.INTER_NEAREST)
-                    lab[~mask] = LABEL_BACKGROUND
+                    lab = np.where(f_area.mask, lab, LABEL_BACKGROUND).astype(np.uint8)
+                    lab = cv2.resize(f_area.crop(lab), (w_, h_), interpolation=cv2.INTER_NEAREST)
+                    lab[~f_mask] = LABEL_BACKGROUND
                     lab_rel = f"labels/{src.id}/{fr.index:06d}.png"
                     (root / "labels" / src.id).mkdir(parents=True, exist_ok=True)
                     cv2.imwrite(str(root / lab_rel), lab)
-            ph = filters.phash(img, mask) if reason is None else None
+            ph = filters.phash(img, f_mask) if reason is None else None
             if reason is None and lab_rel is None and dups.is_duplicate(ph):
                 reason = "duplicate"
             if reason is not None:
@@ -192,11 +203,13 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
                 dropped_all[reason] += 1
                 continue
             dups.add(ph)
+            if own is not None:
+                cv2.imwrite(str(root / mask_file(mask_id)), f_mask.astype(np.uint8) * 255)
             rel = f"images/{src.id}/{fr.index:06d}.{s.image_format}"
             _write_image(root / rel, img, s.image_format, s.quality)
             row["kept"] += 1
             frames_out.append({"file": rel, "source": src.id, "index": fr.index, "time": fr.time,
-                               "size": [h, w], "mask": src.id, "phash": f"{ph:016x}", "split": splits[src.id],
+                               "size": [h_, w_], "mask": mask_id, "phash": f"{ph:016x}", "split": splits[src.id],
                                "label": lab_rel})
     for row in source_rows:
         row["dropped"] = dict(row["dropped"])

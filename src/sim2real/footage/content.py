@@ -28,7 +28,11 @@ values at an analysis size whose long side is at most 640 px):
 5. **Box.** The bounding box of what remains; rows or columns at its edges that are more than
    half overlay (a bar across the view) are cut off.
 
-Frames that move (a zoom, a scope change) are not tracked: the mask is the source's.
+6. **Frames whose view differs.** Each frame's own field of view (steps 1 and 2 on the frame
+   alone) is compared with the source's; where their intersection over union is below 0.8, or
+   below 0.95 while the frame's view reaches 1 % of the frame beyond the source's (a zoom, a
+   scope change, a view that moves), the frame gets its own mask and box: its view less the
+   source's overlays. A view that shrinks by less is taken for dark tissue at the rim.
 
 A maintained detector was looked for: ``torchcontentarea`` (0.4.0, 2022, MIT) fits a circle to
 the view's edge. It is not used: its only distributions are wheels for CPython 3.8/3.9 holding
@@ -57,6 +61,9 @@ STILL_RATIO = 0.1
 STILL_MAX = 2.5
 OVERLAY_MIN_AREA = 0.0005
 STILL_SCENE = 1 / 3
+MOVED_IOU = 0.8
+GROWN_IOU = 0.95
+GROWN_SHARE = 0.01
 BAR_DARK = 45.0
 BAR_STILL = 0.35
 BAR_LENGTH = 0.1
@@ -113,6 +120,10 @@ class ContentArea:
     """'full' (no surround found), 'circle'-like or 'rectangle'-like view, from the hull's fill."""
     overlay_fraction: float
     """Share of the frame masked as overlay."""
+    overlay: np.ndarray | None = None
+    """bool (H, W): the overlays masked (still regions, edge bars)."""
+    view_small: np.ndarray | None = None
+    """bool (h, w): the field of view (convex hull) at the analysis size, to compare frames with."""
 
     @property
     def fraction(self) -> float:
@@ -128,45 +139,51 @@ def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     return n, lab, stats
 
 
+def _view(mean: np.ndarray, std: np.ndarray, full: tuple[int, int]):
+    """Steps 1 and 2 (module docstring): (surround, region, hull) at the analysis size, and the
+    view at the ``full`` frame size with its shape; None where nothing but surround is found."""
+    H, W = full
+    h, w = mean.shape
+    dark = (mean < DARK_MEAN) & (std < DARK_STD)
+    n, lab, _ = _components(dark)
+    border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    surround = np.isin(lab, border[border > 0]) & dark
+    n, lab, st = _components(~surround)
+    if n <= 1:
+        return None
+    region = lab == 1 + int(np.argmax(st[1:, cv2.CC_STAT_AREA]))
+    if not surround.any():
+        return surround, region, np.ones((h, w), bool), np.ones((H, W), bool), "full"
+    pts = cv2.findNonZero(region.astype(np.uint8))
+    hull = cv2.convexHull(pts).reshape(-1, 2).astype(np.float64)
+    hull_small = np.zeros((h, w), np.uint8)
+    cv2.fillPoly(hull_small, [hull.astype(np.int32)], 1)
+    # pixel centres at analysis scale -> full scale; the hull of pixel centres is half a pixel
+    # inside the region's outline on each side, so it is pushed out by that half pixel
+    c = hull.mean(axis=0)
+    hull = hull + 0.5 * np.sign(hull - c)
+    hull_full = np.round((hull + 0.5) * [W / w, H / h] - 0.5).astype(np.int32)
+    view = np.zeros((H, W), np.uint8)
+    cv2.fillPoly(view, [hull_full], 1)
+    r = max(2, round(0.004 * min(H, W)))
+    view = cv2.erode(view, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))).astype(bool)
+    ys, xs = np.nonzero(view)
+    if not len(ys):
+        return None
+    fill = view.sum() / ((ys.max() - ys.min() + 1) * (xs.max() - xs.min() + 1))
+    return surround, region, hull_small.astype(bool), view, "rectangle" if fill > 0.99 else "circle"
+
+
 def detect(stats: FrameStats) -> ContentArea:
     """The content area of a source from its frame statistics (module docstring)."""
     H, W = stats.frame_size
     h, w = stats.size
     mean, std = stats.mean, stats.std
     short = min(H, W)
-    # 1. dark, still surround connected to the border
-    dark = (mean < DARK_MEAN) & (std < DARK_STD)
-    n, lab, _ = _components(dark)
-    border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-    surround = np.isin(lab, border[border > 0]) & dark
-    # 2. the largest remaining region and its convex hull, drawn at full size
-    n, lab, st = _components(~surround)
-    if n <= 1:
+    found = _view(mean, std, (H, W))
+    if found is None:
         return ContentArea(np.zeros((H, W), bool), (0, 0, 0, 0), "empty", 0.0)
-    biggest = 1 + int(np.argmax(st[1:, cv2.CC_STAT_AREA]))
-    region = lab == biggest
-    if not surround.any():
-        view = np.ones((H, W), bool)
-        shape = "full"
-    else:
-        pts = cv2.findNonZero(region.astype(np.uint8))
-        hull = cv2.convexHull(pts).reshape(-1, 2).astype(np.float64)
-        # pixel centres at analysis scale -> full scale; the hull of pixel centres is half a pixel
-        # inside the region's outline on each side, so it is pushed out by that half pixel
-        c = hull.mean(axis=0)
-        hull = hull + 0.5 * np.sign(hull - c)
-        hull_full = np.round((hull + 0.5) * [W / w, H / h] - 0.5).astype(np.int32)
-        view = np.zeros((H, W), np.uint8)
-        cv2.fillPoly(view, [hull_full], 1)
-        r = max(2, round(0.004 * short))
-        view = cv2.erode(view, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))).astype(bool)
-        ys, xs = np.nonzero(view)
-        if len(ys):
-            bh, bw = ys.max() - ys.min() + 1, xs.max() - xs.min() + 1
-            fill = view.sum() / (bh * bw)
-            shape = "rectangle" if fill > 0.99 else "circle"
-        else:
-            shape = "empty"
+    surround, region, view_small, view, shape = found
     # 3. still overlays inside the view (only where the rest moves)
     overlay = np.zeros((H, W), bool)
     inside = region & ~surround
@@ -196,7 +213,35 @@ def detect(stats: FrameStats) -> ContentArea:
     t, l, b, r_ = box
     trimmed = np.zeros_like(mask)
     trimmed[t:b, l:r_] = mask[t:b, l:r_]
-    return ContentArea(trimmed, box, shape, float((overlay & view).mean()))
+    return ContentArea(trimmed, box, shape, float((overlay & view).mean()), overlay & view, view_small)
+
+
+def frame_area(image: np.ndarray, source: ContentArea, size: tuple[int, int]) -> ContentArea | None:
+    """The content area of one frame whose field of view differs from its source's (a zoom, a
+    scope change, a view that moves), else None. It differs when the two views at the analysis
+    ``size`` overlap with an intersection over union below 0.8, or below 0.95 while the frame's
+    view reaches beyond the source's by 1 % of the frame or more (a view that only shrinks a
+    little is most often dark tissue at the rim, not a new view). Then the frame's own view
+    (steps 1, 2 and 5 on the frame alone) less the source's overlays is its content area."""
+    if source.view_small is None:
+        return None
+    g = grey(image, size)
+    found = _view(g, np.zeros_like(g), image.shape[:2])
+    if found is None:
+        return None
+    _, _, view_small, view, shape = found
+    inter = float((view_small & source.view_small).sum())
+    union = float((view_small | source.view_small).sum())
+    grown = float((view_small & ~source.view_small).mean())
+    if union == 0 or not (inter / union < MOVED_IOU or (inter / union < GROWN_IOU and grown >= GROWN_SHARE)):
+        return None
+    overlay = source.overlay if source.overlay is not None else np.zeros_like(view)
+    mask = view & ~overlay
+    box = _box(mask, overlay & view)
+    t, l, b, r = box
+    trimmed = np.zeros_like(mask)
+    trimmed[t:b, l:r] = mask[t:b, l:r]
+    return ContentArea(trimmed, box, shape, float((overlay & view).mean()), overlay & view, view_small)
 
 
 def _edge_bands(mean: np.ndarray, std: np.ndarray, inside: np.ndarray, moving: float) -> np.ndarray:
