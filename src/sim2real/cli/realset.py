@@ -71,9 +71,10 @@ def run(args: argparse.Namespace) -> int:
     m = build_realset(args.sources, args.out, settings, progress=not args.quiet)
     for src in m["sources"]:
         drops = ", ".join(f"{k} {v}" for k, v in src["dropped"].items() if v) or "none"
+        own = f"{src['own_mask_frames']} frames with a view of their own, " if src["own_mask_frames"] else ""
         print(f"{src['id']}: {src['kind']} {src['frame_size'][1]}x{src['frame_size'][0]}, {src['shape']} view, "
-              f"content {src['content_fraction']:.0%} (overlay {src['overlay_fraction']:.1%}), {src['split']}: "
-              f"kept {src['kept']}, dropped {drops}")
+              f"content {src['content_fraction']:.0%} (overlay {src['overlay_fraction']:.1%}), {own}"
+              f"{src['split']}: kept {src['kept']}, dropped {drops}")
     drops = ", ".join(f"{k} {v}" for k, v in m["dropped"].items())
     labelled = sum(1 for f in m["frames"] if f["label"])
     print(f"kept {m['kept']} frames ({labelled} labelled); dropped: {drops}; written to {args.out}")
