@@ -236,9 +236,11 @@ before the length its container declares is truncated."""
 
 
 def _duration(container, stream) -> float | None:
-    """The length the container (else the stream) declares, in seconds, or None."""
+    """The length the video stream (else the container: it may count a longer audio track)
+    declares, in seconds, or None."""
+    if stream.duration and stream.time_base:
+        start = float(stream.start_time * stream.time_base) if stream.start_time else 0.0
+        return float(stream.duration * stream.time_base) + start
     if container.duration:
         return container.duration / 1e6  # FFmpeg's AV_TIME_BASE
-    if stream.duration and stream.time_base:
-        return float(stream.duration * stream.time_base)
     return None
