@@ -129,7 +129,8 @@ def _video(path: Path, seconds: float = 3, fps: int = 25, size=(64, 96)) -> Path
 
 def test_video_at_5_fps_gives_15_frames_of_3_seconds(tmp_path, capsys):
     video = _video(tmp_path / "clip.mp4")
-    code, io = run_cli(["realset", str(video), "--out", str(tmp_path / "real"), "--dup-distance", "-1", "--quiet"], capsys)
+    code, io = run_cli(["realset", str(video), "--out", str(tmp_path / "real"), "--dup-distance", "-1", "--quiet"],
+                       capsys)
     assert code == 0, io.err
     m = json.loads((tmp_path / "real" / "manifest.json").read_text())
     times = [f["time"] for f in m["frames"]]
@@ -232,8 +233,8 @@ def _bad(tmp_path: Path, what: str) -> list[str]:
     raise AssertionError(what)
 
 
-@pytest.mark.parametrize("what", ["corrupt_video", "truncated_mp4", "truncated_mkv", "zero_frames", "not_media", "no_frames",
-                                  "broken_frame", "label_size", "unknown_class", "existing_out"])
+@pytest.mark.parametrize("what", ["corrupt_video", "truncated_mp4", "truncated_mkv", "zero_frames", "not_media",
+                                  "no_frames", "broken_frame", "label_size", "unknown_class", "existing_out"])
 def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, what):
     args = _bad(tmp_path, what)
     expected = {"corrupt_video": "cannot open video", "truncated_mp4": "cannot open video",

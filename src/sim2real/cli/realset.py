@@ -39,13 +39,15 @@ def _distance(text: str) -> int:
 def register(sub) -> None:
     p = sub.add_parser("realset", help="make a real set (domain B) from videos and folders of frames",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("sources", nargs="+", metavar="SRC", help="video files (VIDEO@START-END for a range) or frame folders")
+    p.add_argument("sources", nargs="+", metavar="SRC",
+                   help="video files (VIDEO@START-END for a range) or frame folders")
     p.add_argument("--out", required=True, help="new output folder")
     p.add_argument("--height", type=positive_int, default=512,
                    help="short side of the stored frames, never enlarged (default 512: the largest training height "
                         "planned; a circular view needs about twice the crop height)")
     p.add_argument("--fps", type=positive_float, default=5.0, help="frames per second sampled from videos (default 5)")
-    p.add_argument("--max-frames", type=positive_int, default=None, metavar="N", help="at most N sampled frames per source")
+    p.add_argument("--max-frames", type=positive_int, default=None, metavar="N",
+                   help="at most N sampled frames per source")
     p.add_argument("--held-out", type=_fraction, default=0.2, metavar="FRACTION",
                    help="share of the sources held out from training (default 0.2; at least one of two or more)")
     p.add_argument("--dup-distance", type=_distance, default=4, metavar="BITS",

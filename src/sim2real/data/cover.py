@@ -129,7 +129,8 @@ class ValidArea:
             self._inscribed[key] = lo
         return self._inscribed[key]
 
-    def draw(self, height: int, width: int, factor: float, rng: np.random.Generator) -> tuple[float, float, float, float]:
+    def draw(self, height: int, width: int, factor: float,
+             rng: np.random.Generator) -> tuple[float, float, float, float]:
         """A random source box (left, top, right, bottom) of the crop's aspect, ``factor`` (>= 1)
         times smaller than the largest inscribed one, whose pixels and bilinear reach (1 source
         pixel when enlarging, the shrink factor when reducing) are all inside the mask."""

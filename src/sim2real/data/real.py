@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.data.cover import ValidArea, random_cover_crops
+from sim2real.data.real_manifest import is_realset, load_mask, mask_file, read_manifest
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, read_json_or_none
-from sim2real.data.real_manifest import is_realset, load_mask, mask_file, read_manifest
 
 EXTENSIONS = (".png", ".jpg", ".jpeg")
 
@@ -143,14 +143,17 @@ class RealImages:
             m = read_manifest(self.folder)
             frames = [f for f in m["frames"] if f["split"] == "train"]
             if not frames:
-                raise UserError(f"the real set {self.folder} holds no training frames (all {len(m['frames'])} are held out)")
+                raise UserError(f"the real set {self.folder} holds no training frames "
+                                f"(all {len(m['frames'])} are held out)")
             self.files = [self.folder / f["file"] for f in frames]
             self.masks = [f["mask"] for f in frames]
             self.realset = True
             return
         self.realset = False
         root = self.folder.resolve()
-        cached = _read_index(self.index_path, root) if self.index_path is not None and self.index_path.is_file() else None
+        cached = None
+        if self.index_path is not None and self.index_path.is_file():
+            cached = _read_index(self.index_path, root)
         if cached is not None:
             self.files = cached
             return
@@ -181,7 +184,8 @@ class RealImages:
             self._valid[mid] = ValidArea(load_mask(self.folder / mask_file(mid)))
         return self._valid[mid]
 
-    def sample(self, rng: np.random.Generator, height: int, width: int, scale_min: float, scale_max: float) -> np.ndarray:
+    def sample(self, rng: np.random.Generator, height: int, width: int, scale_min: float,
+               scale_max: float) -> np.ndarray:
         """A random crop as float32 (3, height, width) in [-1, 1]."""
         i = int(rng.integers(0, len(self.files)))
         return to_network(random_resized_crop(load_rgb(self.files[i]), height, width, scale_min, scale_max, rng,

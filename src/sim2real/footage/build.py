@@ -28,10 +28,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from sim2real.data.real_manifest import FORMAT, mask_file, write_manifest
 from sim2real.errors import UserError
 from sim2real.footage import content, filters, labels as labelling
 from sim2real.footage.decode import Source, expected_frames, find_sources, iter_frames
-from sim2real.data.real_manifest import FORMAT, mask_file, write_manifest
 from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND
 
 STATS_FRAMES = 100

@@ -213,7 +213,8 @@ def detect(stats: FrameStats) -> ContentArea:
             if small.sum() <= STILL_SCENE * inside.sum():
                 big = cv2.resize(small.astype(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST)
                 r = max(2, round(0.01 * short))
-                overlay = cv2.dilate(big, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))).astype(bool)
+                disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+                overlay = cv2.dilate(big, disk).astype(bool)
     if stats.n >= 3 and inside.any():
         band = _edge_bands(mean, std, inside, float(np.median(std[inside])))
         if band.any():

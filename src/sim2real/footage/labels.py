@@ -38,7 +38,8 @@ def read_label_map(path: str | os.PathLike) -> np.ndarray:
         if name is None:
             continue
         if name not in CLASSES:
-            raise UserError(f"label map {path}: unknown class '{name}' for id {i} (known: {', '.join(CLASSES)}, or null)")
+            raise UserError(f"label map {path}: unknown class '{name}' for id {i} "
+                            f"(known: {', '.join(CLASSES)}, or null)")
         lut[i] = CLASSES.index(name)
     return lut
 
