@@ -6,6 +6,7 @@ import argparse
 import gc
 import importlib
 import os
+import re
 import sys
 
 from sim2real.errors import UserError
@@ -15,6 +16,14 @@ COMMANDS = ("scene", "render", "realdomain", "realset", "train", "translate", "e
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # A value that starts with '-' and a digit is a value, not an option: coordinate lists
+        # such as "--camera-region -40,60,200,25,25,10" need no '='. (argparse only knows plain
+        # negative numbers; Python 3.13 widened its own pattern the same way.) No option of the
+        # command line starts with '-' and a digit.
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
     def error(self, message: str) -> None:  # one line, exit code 2, no usage dump
         self.exit(2, f"sim2real: error: {message}\n")
 

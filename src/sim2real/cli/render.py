@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import itertools
 
-from sim2real.cli.args import non_negative_int, positive_float, positive_int
+from sim2real.cli.args import non_negative_float, non_negative_int, positive_float, positive_int
 
 
 def register(sub) -> None:
@@ -20,23 +20,30 @@ def register(sub) -> None:
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--workers", type=positive_int, default=None, help="processes (default: all cores)")
     p.add_argument("--preview", action="store_true", help="also write the reference rendering a_ref as PNG")
+    p.add_argument("--max-background", type=non_negative_float, default=None, metavar="SHARE",
+                   help="random views with a larger share of background (escaping rays) are drawn again "
+                        "(default 0.3; 1 keeps every view)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from sim2real.data.views import write_views_manifest
     from sim2real.fileio import prepare_output_dir
     from sim2real.render.raycast import RayCaster, check_camera_region, render_views
     from sim2real.scene.camera import check_size
     from sim2real.scene.scene import Scene
-    from sim2real.scene.trajectory import Trajectory, iter_poses
+    from sim2real.scene.trajectory import MAX_BACKGROUND, Trajectory, iter_poses
 
     scene = Scene.load(args.scene)
     caster = None
+    max_bg = MAX_BACKGROUND if args.max_background is None else min(args.max_background, 1.0)
     if args.trajectory:
         cameras = Trajectory.load(args.trajectory).cameras
         count = len(cameras)
+        caster = RayCaster(scene)
     else:
         check_size(args.height, args.width)
         caster = RayCaster(scene)
@@ -44,12 +51,18 @@ def run(args: argparse.Namespace) -> int:
         # Poses are drawn while the workers render (about 2 ms each: 6 s before the first view
         # of 3,000 otherwise); the first one now, so that a scene without any fails before
         # anything is written.
-        poses = iter_poses(caster, args.views, args.height, args.width, args.fov, args.seed)
+        poses = iter_poses(caster, args.views, args.height, args.width, args.fov, args.seed, max_background=max_bg)
         first = next(poses)
         cameras, count = itertools.chain([first], poses), args.views
     out = prepare_output_dir(args.out)
     paths = [out / f"view_{i:05d}.npz" for i in range(count)]
     render_views(scene, cameras, paths, workers=args.workers, preview=args.preview, caster=caster)
     write_views_manifest(out, scene.name, args.scene, count)
+    if args.trajectory:
+        share = np.array([caster.background_share(c) for c in cameras])
+        print(f"background (escaping rays) per view: median {np.median(share):.1%}, max {share.max():.1%}; "
+              f"{int((share > max_bg).sum())} of {count} views above {max_bg:.0%}")
+    elif caster.skipped_background:
+        print(f"{caster.skipped_background} random views skipped: more than {max_bg:.0%} background (escaping rays)")
     print(f"{count} views of '{scene.name}' written to {out}")
     return 0

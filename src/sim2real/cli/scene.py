@@ -1,4 +1,5 @@
-"""``sim2real scene``: generate procedural scenes, import meshes, check scenes, make trajectories."""
+"""``sim2real scene``: generate procedural scenes, import meshes, check and preview scenes, make
+trajectories."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import argparse
 
 from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
 from sim2real.errors import UserError
+from sim2real.scene.conventions import DEFAULT_CREASE_DEG, UNITS
 
 
 def register(sub) -> None:
@@ -21,19 +23,42 @@ def register(sub) -> None:
     i = ss.add_parser("import", help="make a scene from your own meshes (OBJ, PLY, STL, glTF/GLB, ...)")
     i.add_argument("--mesh", action="append", required=True, metavar="PATH[=CLASS]",
                    help="a mesh file and its class; without =CLASS every part of the file is an object "
-                        "whose class comes from --class or from its name")
+                        "whose class comes from --class or from its name (e.g. 'Kidney_left' is a kidney)")
     i.add_argument("--class", dest="classes", action="append", default=[], metavar="PART=CLASS",
                    help="class of a named part of a multi-object file")
-    i.add_argument("--camera-region", required=True, metavar="CX,CY,CZ,RX,RY,RZ",
-                   help="ellipsoid (mm) where cameras may be: centre and radii")
+    i.add_argument("--class-table", default=None, metavar="FILE",
+                   help="JSON class table: new classes and their a_ref/label/palette colours (docs/own-data.md)")
+    i.add_argument("--units", choices=tuple(UNITS), default="mm",
+                   help="unit of the mesh files (default mm); sizes are checked for plausibility")
+    i.add_argument("--camera-region", required=True, metavar="auto|CX,CY,CZ,RX,RY,RZ",
+                   help="ellipsoid (mm) where cameras may be: centre and radii, or 'auto' to fit one into the "
+                        "cavity in front of the liver")
     i.add_argument("--up", default="0,1,0", metavar="X,Y,Z", help="world direction towards the patient's head")
+    i.add_argument("--anterior", default="0,0,1", metavar="X,Y,Z", help="world direction towards the patient's front")
+    i.add_argument("--crease-angle", type=positive_float, default=DEFAULT_CREASE_DEG, metavar="DEG",
+                   help=f"smooth normals for STL/OBJ meshes without them keep edges sharper than this "
+                        f"(default {DEFAULT_CREASE_DEG:g})")
+    i.add_argument("--flat-normals", action="store_true",
+                   help="keep the file's triangles as they are (no welding, no smooth normals)")
     i.add_argument("--name", default=None)
     i.add_argument("--out", required=True)
     i.set_defaults(func=_import)
 
-    c = ss.add_parser("check", help="load a scene and validate its meshes and camera region")
+    c = ss.add_parser("check", help="load a scene, validate its meshes and camera region, measure escaping rays")
     c.add_argument("scene")
+    c.add_argument("--views", type=positive_int, default=32, help="random views whose background share is measured")
     c.set_defaults(func=_check)
+
+    v = ss.add_parser("preview", help="a contact sheet of random views and a trajectory (a_ref), before training")
+    v.add_argument("scene")
+    v.add_argument("--out", required=True, help="PNG file to write")
+    v.add_argument("--views", type=positive_int, default=8, help="random views on the sheet")
+    v.add_argument("--frames", type=positive_int, default=8, help="frames of one test trajectory on the sheet")
+    v.add_argument("--height", type=positive_int, default=128)
+    v.add_argument("--width", type=positive_int, default=256)
+    v.add_argument("--fov", type=positive_float, default=75.0)
+    v.add_argument("--seed", type=non_negative_int, default=0)
+    v.set_defaults(func=_preview)
 
     t = ss.add_parser("trajectory", help="a smooth camera path through a scene (TUM pose rows)")
     t.add_argument("scene")
@@ -58,48 +83,42 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _import(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from sim2real.scene.importer import import_scene
 
-    from sim2real.render.raycast import check_camera_region
-    from sim2real.scene.io import class_from_name, load_mesh, load_parts, parse_vector
-    from sim2real.scene.scene import CameraRegion, Scene, SceneObject
-
-    mapping = {}
-    for item in args.classes:
-        if "=" not in item:
-            raise UserError(f"--class expects PART=CLASS, got '{item}'")
-        part, cls = item.split("=", 1)
-        mapping[part] = cls
-    objects = []
-    for spec in args.mesh:
-        path, _, cls = spec.partition("=")
-        if cls:
-            objects.append(SceneObject(Path(path).stem, cls, load_mesh(path, Path(path).stem)))
-        else:
-            for part, mesh in load_parts(path).items():
-                objects.append(SceneObject(part, class_from_name(part, mapping), mesh))
-    region = parse_vector(args.camera_region, 6, "--camera-region")
-    scene = Scene(
-        name=args.name or Path(args.out).name,
-        objects=objects,
-        camera_region=CameraRegion(region[:3], region[3:]),
-        up=parse_vector(args.up, 3, "--up"),
-    )
-    check_camera_region(scene)
-    scene.save(args.out)
-    print(f"scene '{scene.name}' ({len(objects)} objects: {', '.join(scene.classes)}) written to {args.out}")
+    scene = import_scene(args)
+    r = scene.camera_region
+    print(f"scene '{scene.name}' ({len(scene.objects)} objects: {', '.join(scene.classes)}; camera region centre "
+          f"{', '.join(f'{x:.1f}' for x in r.center)} radii {', '.join(f'{x:.1f}' for x in r.radii)} mm) "
+          f"written to {args.out}")
     return 0
 
 
 def _check(args: argparse.Namespace) -> int:
-    from sim2real.render.raycast import check_camera_region
+    import numpy as np
+
+    from sim2real.render.raycast import RayCaster, check_camera_region
     from sim2real.scene.scene import Scene
+    from sim2real.scene.trajectory import MAX_BACKGROUND, sample_poses
 
     scene = Scene.load(args.scene)
-    check_camera_region(scene)
+    caster = RayCaster(scene)
+    check_camera_region(scene, caster)
     for o in scene.objects:
         print(f"{o.name:20s} {o.cls:15s} {len(o.mesh.faces):8d} triangles  watertight={o.mesh.is_watertight}")
+    cams = sample_poses(caster, args.views, 128, 256, 75.0, seed=0, max_background=1.0)
+    share = np.array([caster.background_share(c) for c in cams])
+    print(f"background (escaping rays) per random view: median {np.median(share):.1%}, max {share.max():.1%}; "
+          f"{int((share > MAX_BACKGROUND).sum())} of {len(share)} views above {MAX_BACKGROUND:.0%} "
+          f"(such views are not used for training)")
     print(f"scene '{scene.name}' is valid")
+    return 0
+
+
+def _preview(args: argparse.Namespace) -> int:
+    from sim2real.scene.preview import contact_sheet
+
+    path = contact_sheet(args.scene, args.out, args.views, args.frames, args.height, args.width, args.fov, args.seed)
+    print(f"preview of {args.views} random views and {args.frames} trajectory frames written to {path}")
     return 0
 
 

@@ -50,6 +50,7 @@ import torch
 from sim2real.config import DataConfig
 from sim2real.data.real import RealImages
 from sim2real.errors import UserError
+from sim2real.scene.classes import ClassTable
 
 PAIR_TRIES = 10
 _CACHE_VIEWS = 64  # decoded G-buffers kept per worker
@@ -66,14 +67,18 @@ class SceneSource:
     """(O, 2, 3) object bounding boxes (mm): the texture planes span them."""
     view_files: list[Path] | None = None
     """Cached G-buffers, or None to ray-cast fresh random views."""
+    class_table: ClassTable | None = None
+    """Label ids and a_ref colours of the scene's classes (None: the defaults)."""
 
     @property
     def cached(self) -> bool:
         return self.view_files is not None
 
     def to_json(self) -> dict:
+        table = self.class_table if self.class_table is not None else ClassTable.migrate(self.classes)
         return {"name": self.name, "scene_dir": str(self.scene_dir),
-                "views": None if self.view_files is None else [str(p) for p in self.view_files]}
+                "views": None if self.view_files is None else [str(p) for p in self.view_files],
+                "classes": list(self.classes), "class_table": table.to_json()}
 
 
 def resolve_scenes(paths: list[str | os.PathLike], height: int, width: int) -> list[SceneSource]:
@@ -102,18 +107,23 @@ def resolve_scenes(paths: list[str | os.PathLike], height: int, width: int) -> l
                                 f"(render them at that size, or set data.height/data.width)")
             if tuple(first.classes) != scene.classes:
                 raise UserError(f"views in {path} do not match the objects of scene '{scene.name}' in {scene_dir}")
+            if first.class_table != scene.class_table:
+                raise UserError(f"views in {path} were rendered with other class colours than scene '{scene.name}' "
+                                f"in {scene_dir} has now; render them again")
             src = by_name.get(scene.name)
             if src is not None and not src.cached:
                 raise UserError(f"scene '{scene.name}' is given both as a scene folder and as views folder {path}; give one")
             if src is None:
-                by_name[scene.name] = SceneSource(scene.name, scene_dir.resolve(), scene.classes, scene.bounds(), list(files))
+                by_name[scene.name] = SceneSource(scene.name, scene_dir.resolve(), scene.classes, scene.bounds(), list(files),
+                                                 scene.class_table)
             else:
                 src.view_files.extend(files)
         elif (path / "scene.json").is_file():
             scene = Scene.load(path)
             if scene.name in by_name:
                 raise UserError(f"scene '{scene.name}' is given twice (second time: {path})")
-            by_name[scene.name] = SceneSource(scene.name, path.resolve(), scene.classes, scene.bounds(), None)
+            by_name[scene.name] = SceneSource(scene.name, path.resolve(), scene.classes, scene.bounds(), None,
+                                            scene.class_table)
         elif path.is_dir():
             raise UserError(f"{path} is neither a scene folder (scene.json) nor a finished views folder ({MANIFEST})")
         else:

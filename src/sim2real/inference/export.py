@@ -7,9 +7,9 @@
       depth_npy/000000.npy    float32 z-depth in mm; 0 = no surface
       flow/000000.flo         Middlebury .flo, forward flow t -> t+1 in pixels (t = 0 .. T-2)
       flow_mask/000000.png    uint8, 255 = the pixel's surface point is visible in frame t+1
-      labels/000000.png       uint8 class index (liver 0, fat 1, ligament 2, abdominal_wall 3,
-                              gallbladder 4), 255 = background
-      labels_color/000000.png RGB preview of the labels (palette :data:`LABEL_PALETTE`)
+      labels/000000.png       uint8 class label id (liver 0, fat 1, ligament 2, abdominal_wall 3,
+                              gallbladder 4, others from the scene's class table), 255 = background
+      labels_color/000000.png RGB preview of the labels (the class table's palette)
       intrinsics.json         fx, fy, cx, cy, width, height, K (+ per-frame K if it varies)
       poses_tum_mm.txt        camera-to-world poses, TUM rows, millimetres
       tum/                    a TUM RGB-D sequence folder (metres, depth scale 5000)
@@ -42,7 +42,7 @@ from sim2real.errors import UserError
 from sim2real.fileio import atomic_path, atomic_write_bytes, atomic_write_image, atomic_write_json, atomic_write_text
 from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.camera import invert_rigid, rotation_to_quaternion
-from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND, LABEL_PALETTE
+from sim2real.scene.classes import LABEL_BACKGROUND, ClassTable
 from sim2real.scene.tum import read_tum
 
 FORMAT = "sim2real-ground-truth/1"
@@ -149,13 +149,10 @@ def read_flo(path: str | os.PathLike) -> np.ndarray:
 
 
 
-def labels_to_color(labels: np.ndarray) -> np.ndarray:
-    """uint8 labels (255 = background) -> (H, W, 3) uint8 RGB with :data:`LABEL_PALETTE`."""
-    lut = np.zeros((256, 3), np.uint8)
-    for k, c in enumerate(CLASSES):
-        lut[k] = LABEL_PALETTE[c]
-    lut[LABEL_BACKGROUND] = LABEL_PALETTE["background"]
-    return lut[labels]
+def labels_to_color(labels: np.ndarray, table: ClassTable | None = None) -> np.ndarray:
+    """uint8 labels (255 = background) -> (H, W, 3) uint8 RGB with the palette of ``table``
+    (default: the default class table)."""
+    return (table if table is not None else ClassTable.defaults()).palette_lut()[labels]
 
 
 # --- poses ---------------------------------------------------------------------------------------
@@ -275,6 +272,11 @@ def export_ground_truth(
         missing = [p for p in rgb_src if not p.is_file()]
         if missing:
             raise UserError(f"RGB frame {missing[0]} does not exist")
+    table = gbuffers[0].class_table
+    for g in gbuffers[1:]:
+        if g.class_table is not table:
+            table = table.merged(g.class_table, " of one video")
+    lut = table.palette_lut()
     out.mkdir(parents=True, exist_ok=True)
 
     timestamps = [i / fps for i in range(n)]
@@ -287,7 +289,7 @@ def export_ground_truth(
         atomic_write_bytes(out / "depth_npy" / _name(i, "npy"), _npy_bytes(depth))
         labels = g.labels()
         atomic_write_image(out / "labels" / _name(i, "png"), labels)
-        atomic_write_image(out / "labels_color" / _name(i, "png"), labels_to_color(labels))
+        atomic_write_image(out / "labels_color" / _name(i, "png"), lut[labels])
         if i + 1 < n:
             f, visible = gt_flow(g, gbuffers[i + 1])
             write_flo(out / "flow" / _name(i, "flo"), f)
@@ -356,9 +358,10 @@ def export_ground_truth(
         "fps": fps,
         "width": w,
         "height": h,
-        "classes": list(CLASSES),
+        "classes": list(table.to_json()),  # in label-id order
+        "class_table": table.to_json(),
         "label_background": LABEL_BACKGROUND,
-        "label_palette": {k: list(v) for k, v in LABEL_PALETTE.items()},
+        "label_palette": table.palette_json(),
         "depth_png_per_mm": DEPTH_PNG_SCALE,
         "tum_depth_per_m": TUM_DEPTH_SCALE,
         "flow_frames": max(n - 1, 0),

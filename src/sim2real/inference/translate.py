@@ -41,6 +41,7 @@ import torch
 from sim2real.engine import precision
 from sim2real.errors import UserError
 from sim2real.render.gbuffer import GBuffer
+from sim2real.scene.classes import ClassTable
 
 FORMAT = "sim2real-translate/1"
 DEFAULT_BATCH = 8
@@ -61,6 +62,9 @@ class SceneInfo:
     """Class of each object, from that scene.json when it is still there."""
     num_objects: int | None
     """Objects of the neural texture (None for the no-texture ablation)."""
+    class_table: ClassTable | None = None
+    """a_ref colours and label ids the run was trained with (a checkpoint from before classes
+    were data has none: the defaults then)."""
 
 
 def _scene_classes(scene_dir: Path | None) -> tuple[str, ...] | None:
@@ -106,17 +110,36 @@ class TrainedModel:
             raise UserError(f"the run was not trained on scene '{name}'; it knows: {', '.join(self.scenes)}")
         return self.infos[name]
 
-    def check_classes(self, name: str, classes: Sequence[str], where: str = "") -> None:
-        """Refuse G-buffers whose objects do not match the scene's texture."""
+    def check_classes(self, name: str, classes: Sequence[str], where: str = "", table: ClassTable | None = None) -> None:
+        """Refuse G-buffers whose objects do not match the scene's texture, or whose classes have
+        a_ref colours (``table``) other than those the run was trained with."""
         info = self.scene(name)
         classes = tuple(classes)
         src = f" ({where})" if where else ""
+        if table is not None:
+            known = info.class_table if info.class_table is not None else ClassTable.defaults()
+            for c in dict.fromkeys(classes):
+                if c not in known:
+                    raise UserError(f"scene '{name}'{src} has class '{c}', for which the run has no texture or a_ref "
+                                    f"colour (it knows: {', '.join(known)})")
+                if table[c].a_ref != known[c].a_ref:
+                    raise UserError(f"scene '{name}'{src} gives class '{c}' the a_ref colour {list(table[c].a_ref)}, "
+                                    f"the run was trained with {list(known[c].a_ref)}")
         if info.classes is not None and classes != info.classes:
             raise UserError(f"scene '{name}'{src} has objects of classes {list(classes)}, but the run was trained on "
                             f"a scene '{name}' with {list(info.classes)}")
         if info.num_objects is not None and len(classes) != info.num_objects:
             raise UserError(f"scene '{name}'{src} has {len(classes)} objects, but the run's texture of '{name}' "
                             f"has {info.num_objects}")
+
+    def check_gbuffers(self, name: str, gbuffers: Sequence[GBuffer]) -> None:
+        """:meth:`check_classes` for each distinct class list and table of ``gbuffers``."""
+        seen = set()
+        for g in gbuffers:
+            key = (tuple(g.classes), id(g.class_table))
+            if key not in seen:
+                seen.add(key)
+                self.check_classes(name, g.classes, table=g.class_table)
 
     @torch.inference_mode()
     def translate_views(self, scene_name: str, gbuffers: Sequence[GBuffer], real: Sequence[np.ndarray] | None = None,
@@ -131,8 +154,7 @@ class TrainedModel:
         out: dict[str, list[np.ndarray]] = {}
         for i in range(0, len(gbuffers), batch):
             chunk = gbuffers[i : i + batch]
-            for cls in {tuple(g.classes) for g in chunk}:
-                self.check_classes(scene_name, cls)
+            self.check_gbuffers(scene_name, chunk)
             b = self.method.inference_batch(chunk, info.index, self.device)
             r = None
             if real is not None:
@@ -196,8 +218,7 @@ class FrameSequence:
     def translate(self, gbuffers: Sequence[GBuffer]) -> list[np.ndarray]:
         """The next frames of the sequence -> uint8 (H, W, 3) RGB frames, in order."""
         gbuffers = list(gbuffers)
-        for cls in {tuple(g.classes) for g in gbuffers}:
-            self.model.check_classes(self.info.name, cls)
+        self.model.check_gbuffers(self.info.name, gbuffers)
         out: list[np.ndarray] = []
         i = 0
         while i < len(gbuffers):
@@ -256,7 +277,9 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
     infos = []
     for k, (s, n_obj) in enumerate(zip(scenes_raw, objects)):
         scene_dir = Path(s["scene_dir"]) if s.get("scene_dir") else None
-        infos.append(SceneInfo(str(s["name"]), s["key"], k, scene_dir, _scene_classes(scene_dir), n_obj))
+        table = ClassTable.from_json(s["class_table"], f"checkpoint {path}") if "class_table" in s else None
+        classes = tuple(s["classes"]) if "classes" in s else _scene_classes(scene_dir)
+        infos.append(SceneInfo(str(s["name"]), s["key"], k, scene_dir, classes, n_obj, table))
     try:
         gen.load_state_dict(gen_state)
     except RuntimeError as e:
@@ -310,7 +333,7 @@ def trajectory_source(model: TrainedModel, scene: str | os.PathLike, trajectory:
         raise UserError(f"scene folder {path} does not exist (the run knows the scenes: {', '.join(model.scenes)})")
     sc = Scene.load(path)
     model.scene(sc.name)
-    model.check_classes(sc.name, sc.classes, str(path))
+    model.check_classes(sc.name, sc.classes, str(path), sc.class_table)
     traj = Trajectory.load(trajectory)
     return TranslateSource(sc.name, path.resolve(), cameras=traj.cameras, fps=traj.fps,
                            description={"kind": "trajectory", "trajectory": str(Path(trajectory).resolve()),
@@ -327,7 +350,7 @@ def views_source(model: TrainedModel, views_dir: str | os.PathLike) -> Translate
     name = str(manifest.get("scene", ""))
     model.scene(name)
     first = GBuffer.load(files[0])
-    model.check_classes(name, first.classes, str(views_dir))
+    model.check_classes(name, first.classes, str(views_dir), first.class_table)
     scene_dir = Path(manifest["scene_dir"]) if manifest.get("scene_dir") else None
     return TranslateSource(name, scene_dir, view_files=list(files), fps=5.0,
                            description={"kind": "views", "views_dir": str(Path(views_dir).resolve())})

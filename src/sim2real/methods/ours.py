@@ -132,7 +132,8 @@ class Ours(Method):
         keys, textures = self.scene_keys(sources), nn.ModuleDict()
         if self.features:
             for key, src in zip(keys, sources):
-                textures[key] = NeuralTexture(len(src.classes), src.bounds, class_albedo(src.classes), self.mc.texture)
+                textures[key] = NeuralTexture(len(src.classes), src.bounds, class_albedo(src.classes, src.class_table),
+                                              self.mc.texture)
         gen = self._stage(keys, textures)
         d = self.cfg.discriminator
         return gen, DisStage(MsImageDis(self.features + 3, d), MsImageDis(3, d))

@@ -11,7 +11,10 @@ object's local frame (``point - object bounding-box minimum``, mm; see
 * liver: dark red-brown, glossy, fine mottling and a faint lobular (cellular) pattern;
 * fat (and stomach, which the procedural scenes put in the fat object): yellow-orange lobules of
   varying tint with reddish septa and thin vessels between them, each lobule bulging (bump map);
-* gallbladder: greenish, glossy, a few vessels; ligament: whitish, fibrous streaks, fat patches.
+* gallbladder: greenish, glossy, a few vessels; ligament: whitish, fibrous streaks, fat patches;
+* any other class (stomach, kidney, instrument, a user's own): a neutral material, the class
+  table's a_ref colour with a mild mottling, a little gloss and a fine bump
+  (:func:`material_default`).
 
 Each material returns a :class:`Surface` (albedo, bump gradient, gloss); the shading is in
 :mod:`sim2real.realdomain.shading`.
@@ -301,6 +304,17 @@ def material_ligament(obj: _Object, app: Appearance, p: np.ndarray, n: np.ndarra
     return Surface(np.clip(c, 0, 1), 0.15 * g, 0.05 * app.gloss, 30.0, 0.5, sheen=0.03)
 
 
+def material_default(obj: _Object, app: Appearance, p: np.ndarray, n: np.ndarray, fp: np.ndarray,
+                     colour=(0.6, 0.45, 0.45)) -> Surface:
+    """A neutral material for a class without its own: ``colour`` (sRGB in [0, 1], the class's
+    a_ref colour) with a mild low-frequency mottling, a fine bump and a moderate gloss."""
+    N = len(p)
+    nz = obj.noise
+    c = _full(N, colour) * (1.0 + 0.1 * nz.fbm(p, 10.0, 3, footprint=fp))[:, None]
+    _, g = nz.fbm(p, 3.0, 2, footprint=fp, grad=True, first_octave=5)
+    return Surface(np.clip(c, 0, 1), 0.08 * g, 0.05 * app.gloss, 60.0, 0.2, sheen=0.04)
+
+
 MATERIALS = {
     "abdominal_wall": material_wall,
     "liver": material_liver,
@@ -339,7 +353,12 @@ class SceneMaterial:
             sel = np.nonzero(object_id == k)[0]
             obj = self.objects[int(k)]
             p = points[sel].astype(np.float64) - obj.origin
-            s = MATERIALS[self.scene.objects[int(k)].cls](obj, self.appearance, p, normals[sel], footprint[sel])
+            cls = self.scene.objects[int(k)].cls
+            if cls in MATERIALS:
+                s = MATERIALS[cls](obj, self.appearance, p, normals[sel], footprint[sel])
+            else:
+                s = material_default(obj, self.appearance, p, normals[sel], footprint[sel],
+                                     self.scene.class_table[cls].a_ref)
             out["albedo"][sel] = s.albedo
             out["bump"][sel] = s.bump
             out["specular"][sel] = s.specular

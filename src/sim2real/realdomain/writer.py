@@ -6,10 +6,10 @@ stand-in renderer (:mod:`sim2real.realdomain`) in a process pool
 worker). Every frame draws its own seeds (:func:`~sim2real.realdomain.derive_seed`), so
 the output does not depend on the number of workers. Layout: docs/realdomain.md.
 
-Label PNGs hold the class index per pixel in :data:`sim2real.scene.scene.CLASSES` order
-(0 liver, 1 fat, 2 ligament, 3 abdominal_wall, 4 gallbladder) and :data:`LABEL_BACKGROUND` = 255
+Label PNGs hold the class label id per pixel (0 liver, 1 fat, 2 ligament, 3 abdominal_wall,
+4 gallbladder, others from the scenes' class tables) and :data:`LABEL_BACKGROUND` = 255
 for pixels without a surface (or outside the endoscope mask). They are palette PNGs: reading
-them as arrays gives the indices, image viewers show :data:`LABEL_PALETTE` colours.
+them as arrays gives the indices, image viewers show the class tables' palette colours.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from sim2real.errors import UserError
 from sim2real.realdomain.appearance import Appearance, derive_seed
 from sim2real.realdomain.materials import SceneMaterial
 from sim2real.realdomain.shading import RenderOptions, render_frame
-from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND, LABEL_PALETTE
+from sim2real.scene.classes import LABEL_BACKGROUND, ClassTable
 
 FORMAT = "sim2real-realdomain/1"
 
@@ -32,18 +32,16 @@ FORMAT = "sim2real-realdomain/1"
 _APPEARANCE, _POSE, _TRAJECTORY, _FRAME, _SEQUENCE_FRAME = 11, 12, 13, 14, 15
 
 
-def write_label(path: str | os.PathLike, label: np.ndarray) -> None:
-    """Palette PNG: array values are the class indices, viewers show :data:`LABEL_PALETTE`."""
+def write_label(path: str | os.PathLike, label: np.ndarray, table: ClassTable | None = None) -> None:
+    """Palette PNG: array values are the class label ids, viewers show the palette of ``table``
+    (default: the default class table)."""
     import io
 
     from PIL import Image
 
     from sim2real.fileio import atomic_write_bytes
 
-    pal = np.zeros((256, 3), np.uint8)
-    for i, c in enumerate(CLASSES):
-        pal[i] = LABEL_PALETTE[c]
-    pal[LABEL_BACKGROUND] = LABEL_PALETTE["background"]
+    pal = (table if table is not None else ClassTable.defaults()).palette_lut()
     im = Image.fromarray(np.ascontiguousarray(label.astype(np.uint8)), mode="P")
     im.putpalette(pal.reshape(-1).tolist())
     buf = io.BytesIO()
@@ -81,7 +79,7 @@ def render_job(state: WorkerScenes, job) -> str:
     k, camera, seed, image_path, label_path = job
     caster, material = state.scene(k)
     frame = render_frame(caster.render(camera), material, state.options, seed)
-    write_label(label_path, frame.label)
+    write_label(label_path, frame.label, material.scene.class_table)
     atomic_write_image(image_path, frame.image)
     return image_path
 
@@ -189,7 +187,9 @@ def make_real_domain(
 
     run_jobs(dirs, appearances, opt, jobs, workers=workers, progress=progress)
 
-    pal = {c: list(LABEL_PALETTE[c]) for c in CLASSES}
+    table = scenes[0].class_table
+    for other in scenes[1:]:
+        table = table.merged(other.class_table, " of the stand-in domain")
     manifest = {
         "format": FORMAT,
         "generator": "sim2real.realdomain",
@@ -198,8 +198,8 @@ def make_real_domain(
         "sequences": int(sequences),
         "frames_per_sequence": int(frames) if sequences else 0,
         "render": opt.to_json(),
-        "labels": {"classes": list(CLASSES), "background": LABEL_BACKGROUND,
-                   "palette": {**pal, "background": list(LABEL_PALETTE["background"])}},
+        "labels": {"classes": list(table.to_json()), "background": LABEL_BACKGROUND,
+                   "palette": table.palette_json(), "class_table": table.to_json()},
         "scenes": [
             {"dir": d, "name": s.name, "scene_seed": s.metadata.get("seed"), "appearance": a.to_json()}
             for d, s, a in zip(dirs, scenes, appearances)

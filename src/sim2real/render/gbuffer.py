@@ -13,11 +13,15 @@ key                 shape         dtype      meaning
 ``object_id``       (H, W)        int16      index into ``classes``; -1 = background
 ``points``          (H, W, 3)     float32    world-space surface point, mm; 0 where no surface
 ``classes``         (O,)          str        class name of each object id
+``class_table``     ()            str        JSON of the scene's class table (label ids, colours;
+                                             :mod:`sim2real.scene.classes`); optional on load:
+                                             older files get the default table
 ==================  ============  =========  ====================================================
 """
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 
@@ -26,6 +30,7 @@ import numpy as np
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_save_npz
 from sim2real.scene.camera import Camera
+from sim2real.scene.classes import LABEL_BACKGROUND, ClassTable
 
 KEYS = ("K", "world_to_camera", "depth", "distance", "normal", "object_id", "points", "classes")
 
@@ -40,6 +45,12 @@ class GBuffer:
     object_id: np.ndarray
     points: np.ndarray
     classes: tuple[str, ...]
+    class_table: ClassTable | None = None
+    """Label id and colours of the classes; None: the defaults (unknown classes are refused)."""
+
+    def __post_init__(self) -> None:
+        table = self.class_table if self.class_table is not None else ClassTable.defaults()
+        self.class_table = table.subset(self.classes)
 
     @property
     def height(self) -> int:
@@ -59,20 +70,17 @@ class GBuffer:
         return Camera(self.K, self.world_to_camera, self.height, self.width)
 
     def class_index(self) -> np.ndarray:
-        """Per-pixel index into :data:`sim2real.scene.scene.CLASSES` (-1 = background).
+        """Per-pixel label id of the class (the class table's ``label``; -1 = background).
 
-        Object ids follow the scene's object order; this maps them to the fixed class order so
+        Object ids follow the scene's object order; this maps them to the classes' fixed ids
+        (liver 0, fat 1, ligament 2, abdominal_wall 3, gallbladder 4, others from the table) so
         that a missing class never shifts an index."""
-        from sim2real.scene.scene import CLASSES
-
-        lut = np.array([CLASSES.index(c) for c in self.classes] + [-1], dtype=np.int16)
+        lut = np.append(self.class_table.labels(self.classes), np.int16(-1))
         return lut[self.object_id]  # -1 indexes the appended background entry
 
     def labels(self) -> np.ndarray:
         """uint8 (H, W) label image: :meth:`class_index`, with
-        :data:`sim2real.scene.scene.LABEL_BACKGROUND` (255) where there is no surface."""
-        from sim2real.scene.scene import LABEL_BACKGROUND
-
+        :data:`sim2real.scene.classes.LABEL_BACKGROUND` (255) where there is no surface."""
         c = self.class_index()
         return np.where(c >= 0, c, LABEL_BACKGROUND).astype(np.uint8)
 
@@ -81,7 +89,8 @@ class GBuffer:
         written under a temporary name and renamed; ``durable=False`` skips the fsync (scratch
         files). :meth:`load` also reads the compressed files of earlier versions."""
         arrays = {k: getattr(self, k) for k in KEYS if k != "classes"}
-        atomic_save_npz(path, {**arrays, "classes": np.array(self.classes, dtype=str)}, durable=durable)
+        atomic_save_npz(path, {**arrays, "classes": np.array(self.classes, dtype=str),
+                               "class_table": np.array(json.dumps(self.class_table.to_json()))}, durable=durable)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "GBuffer":
@@ -91,9 +100,15 @@ class GBuffer:
                 if missing:
                     raise UserError(f"view file {path} lacks key '{missing[0]}'")
                 data = {k: z[k] for k in KEYS}
+                table = str(z["class_table"]) if "class_table" in z else None
         except UserError:
             raise
         except Exception as e:  # zip / format errors of a damaged file
             raise UserError(f"cannot read view file {path}: {e}") from None
         data["classes"] = tuple(str(c) for c in data["classes"])
+        if table is not None:
+            try:
+                data["class_table"] = ClassTable.from_json(json.loads(table), f"view file {path}")
+            except ValueError as e:
+                raise UserError(f"view file {path} has a damaged class table ({e})") from None
         return cls(**data)

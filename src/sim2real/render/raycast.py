@@ -23,6 +23,7 @@ from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.camera import Camera, pixel_centres
 
 if TYPE_CHECKING:
+    from sim2real.scene.classes import ClassTable
     from sim2real.scene.scene import Scene
 
 _MISS = 1e30
@@ -58,24 +59,30 @@ class SceneGeometry:
 
     Per object, in object-id order: ``vertices`` (V, 3) float64 mm, ``faces`` (F, 3) int64,
     ``face_normals`` (F, 3) float32 (outward unit normals) and ``vertex_normals`` (V, 3) float32
-    (area-weighted, unit)."""
+    (the mesh's own smooth normals where the scene stores them, else area-weighted; unit)."""
 
     classes: tuple[str, ...]
     vertices: tuple[np.ndarray, ...]
     faces: tuple[np.ndarray, ...]
     face_normals: tuple[np.ndarray, ...]
     vertex_normals: tuple[np.ndarray, ...]
+    class_table: "ClassTable | None" = None
 
     @classmethod
     def of(cls, scene: "Scene") -> "SceneGeometry":
         verts = tuple(np.asarray(o.mesh.vertices, dtype=np.float64) for o in scene.objects)
         faces = tuple(np.asarray(o.mesh.faces, dtype=np.int64) for o in scene.objects)
+        normals = tuple(
+            _unit(np.asarray(o.mesh.vertex_normals, np.float64)).astype(np.float32) if o.own_normals
+            else _smooth_normals(v, f).astype(np.float32)
+            for o, v, f in zip(scene.objects, verts, faces))
         return cls(
             classes=tuple(scene.classes),
             vertices=verts,
             faces=faces,
             face_normals=tuple(np.asarray(o.mesh.face_normals, np.float32) for o in scene.objects),
-            vertex_normals=tuple(_smooth_normals(v, f).astype(np.float32) for v, f in zip(verts, faces)),
+            vertex_normals=normals,
+            class_table=scene.class_table,
         )
 
 
@@ -161,7 +168,20 @@ class RayCaster:
             object_id=obj.reshape(h, w).astype(np.int16),
             points=points.reshape(h, w, 3),
             classes=self.classes,
+            class_table=self.geometry.class_table,
         )
+
+    def background_share(self, camera: Camera, probe: int = 32) -> float:
+        """Share of the view's rays that hit nothing (escape through a hole in the scene),
+        estimated on a grid of about ``probe`` x ``2 probe`` rays (the view's aspect kept)."""
+        h = max(1, min(camera.height, probe))
+        w = max(1, round(camera.width * h / camera.height))
+        K = camera.K.copy()
+        K[0] *= w / camera.width
+        K[1] *= h / camera.height
+        d = _camera_directions(K, h, w) @ camera.camera_to_world[:3, :3].T.astype(np.float32)
+        hits = self.intersect(camera.camera_to_world[:3, 3][None], d)
+        return float((hits["object"] < 0).mean())
 
     # --- inside / outside ----------------------------------------------------------------------
 
@@ -219,6 +239,11 @@ def _camera_directions_cached(k_bytes: bytes, h: int, w: int) -> np.ndarray:
 def _camera_directions(K: np.ndarray, h: int, w: int) -> np.ndarray:
     """Unit ray directions through the pixel centres, camera frame, (H*W, 3) float32."""
     return _camera_directions_cached(np.ascontiguousarray(K, dtype=np.float64).tobytes(), h, w)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.where(n > 1e-20, v / np.maximum(n, 1e-20), np.array([0.0, 0.0, 1.0]))
 
 
 def _smooth_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The simple reference rendering a_ref (paper Sec. 3, Eq. 2; authors' constants).
 
-    a_ref = albedo[class] * (0.9 * diffuse + 0.1) * L(d)
+    a_ref = albedo[class] * (0.9 * diffuse + 0.1) * L(d)     (albedo: the class table's a_ref colour)
     diffuse = clamp(n . (-ray direction), 0, 1)          (the light sits on the camera)
     L(d) = 1 / (3.5e-5 d^2 + 4e-4 d + 0.4),   d = min(distance, 100 mm)
 
@@ -18,24 +18,20 @@ import numpy as np
 
 from sim2real.fileio import atomic_write_image
 from sim2real.render.gbuffer import GBuffer
-from sim2real.scene.scene import CLASSES
+from sim2real.scene.classes import DEFAULT_CLASSES, PAPER_CLASSES, ClassTable
 
-ALBEDO: dict[str, tuple[float, float, float]] = {
-    "liver": (0.34, 0.1, 0.1),
-    "fat": (0.85, 0.58, 0.36),
-    "ligament": (0.7, 0.56, 0.52),
-    "abdominal_wall": (0.62, 0.38, 0.42),
-    "gallbladder": (0.42, 0.48, 0.28),
-}
-"""Flat per-class RGB albedo in [0, 1] (also the neural textures' initial colours)."""
+ALBEDO: dict[str, tuple[float, float, float]] = {c: DEFAULT_CLASSES[c].a_ref for c in PAPER_CLASSES}
+"""Flat RGB albedo in [0, 1] of the paper's five classes (the authors' constants); other classes
+take theirs from the scene's class table (:mod:`sim2real.scene.classes`)."""
 
 FALLOFF = (3.5e-5, 4e-4, 0.4)
 DISTANCE_CLAMP_MM = 100.0
 
 
-def class_albedo(classes: tuple[str, ...] | list[str]) -> np.ndarray:
-    """(O, 3) albedo of each object, in object-id order."""
-    return np.array([ALBEDO[c] for c in classes], dtype=np.float32)
+def class_albedo(classes: tuple[str, ...] | list[str], table: ClassTable | None = None) -> np.ndarray:
+    """(O, 3) albedo of each object, in object-id order (also the neural textures' initial
+    colours), from ``table`` (default: the default class table)."""
+    return (table if table is not None else ClassTable.defaults()).albedo(classes)
 
 
 def paper_light_falloff(distance: np.ndarray) -> np.ndarray:
@@ -56,7 +52,7 @@ def view_directions(g: GBuffer) -> np.ndarray:
 
 def reference_rendering(g: GBuffer) -> np.ndarray:
     """a_ref of a view as float32 (H, W, 3) RGB in [0, 1]."""
-    albedo = np.concatenate([class_albedo(g.classes), np.zeros((1, 3), np.float32)])[g.object_id]
+    albedo = np.concatenate([g.class_table.albedo(g.classes), np.zeros((1, 3), np.float32)])[g.object_id]
     diffuse = np.clip(np.einsum("hwc,hwc->hw", g.normal, view_directions(g)), 0.0, 1.0)
     shade = (0.9 * diffuse + 0.1) * paper_light_falloff(g.distance)
     out = albedo * shade[..., None]
@@ -71,5 +67,3 @@ def to_uint8(image: np.ndarray) -> np.ndarray:
 def save_preview(g: GBuffer, path: str | os.PathLike) -> None:
     atomic_write_image(path, to_uint8(reference_rendering(g)))
 
-
-assert set(ALBEDO) == set(CLASSES)

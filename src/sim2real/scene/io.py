@@ -1,7 +1,9 @@
 """Mesh import through trimesh (OBJ, PLY, STL, glTF/GLB, OFF, ...), with clear errors.
 
 Multi-object files (GLB scenes, OBJ with several ``o`` groups) are split into their parts,
-named after the glTF node or OBJ object names.
+named after the glTF node or OBJ object names. :func:`check_units` refuses sizes implausible
+for the unit the user gave; :func:`smooth_normals` gives meshes without vertex normals (STL
+always, OBJ often) smooth, angle-weighted ones.
 """
 
 from __future__ import annotations
@@ -13,7 +15,16 @@ import numpy as np
 import trimesh
 
 from sim2real.errors import UserError
-from sim2real.scene.scene import CLASSES, check_mesh
+from sim2real.scene.classes import ClassTable
+from sim2real.scene.conventions import DEFAULT_CREASE_DEG, UNITS
+from sim2real.scene.scene import check_mesh
+
+LIVER_ACROSS_MM = (20.0, 500.0)
+"""Plausible size of a liver (largest side of its bounding box), mm."""
+SCENE_ACROSS_MM = (20.0, 2000.0)
+"""Plausible size of a scene without a liver (largest side of its bounding box), mm."""
+NORMALS_SUFFIXES = (".stl", ".obj")
+"""File types whose meshes get smooth normals at import when they carry none."""
 
 
 def _read(path: Path) -> trimesh.Trimesh | trimesh.Scene:
@@ -57,18 +68,76 @@ def load_mesh(path: str | os.PathLike, name: str) -> trimesh.Trimesh:
     return mesh
 
 
-def class_from_name(name: str, mapping: dict[str, str]) -> str:
-    """Class of a part: an explicit ``mapping`` entry, else a class name the part name starts with."""
+def class_from_name(name: str, mapping: dict[str, str], table: ClassTable | None = None) -> str:
+    """Class of a part: an explicit ``mapping`` entry, else a class of ``table`` (default: the
+    default classes) that the part name starts with (case, spaces and '-' ignored: 'Kidney_left'
+    is a kidney, 'Small bowel 2' a small_bowel)."""
     if name in mapping:
         return mapping[name]
-    low = name.lower().replace(" ", "_").replace("-", "_")
-    for cls in sorted(CLASSES, key=len, reverse=True):
+    known = list(table if table is not None else ClassTable.defaults())
+    low = name.lower().replace(" ", "_").replace("-", "_").replace(".", "_")
+    for cls in sorted(known, key=len, reverse=True):
         if low.startswith(cls):
             return cls
     raise UserError(
         f"cannot tell the class of mesh part '{name}'; name it with --class '{name}=CLASS' "
-        f"(classes: {', '.join(CLASSES)})"
+        f"(classes: {', '.join(known)})"
     )
+
+
+def has_vertex_normals(mesh: trimesh.Trimesh) -> bool:
+    """Whether the file gave the mesh its own vertex normals (trimesh keeps loaded ones cached)."""
+    return "vertex_normals" in mesh._cache and len(mesh._cache["vertex_normals"]) == len(mesh.vertices)
+
+
+def smooth_normals(mesh: trimesh.Trimesh, crease_deg: float = DEFAULT_CREASE_DEG) -> trimesh.Trimesh:
+    """A copy of ``mesh`` with smooth vertex normals: vertices at the same position are welded
+    (STL stores every triangle with its own three), the surface is cut along edges whose faces
+    meet at more than ``crease_deg`` (:func:`trimesh.graph.smooth_shade`: the connected patches of
+    smooth edges get their own vertices), and each vertex normal is the angle-weighted mean of
+    its faces' normals (:func:`trimesh.geometry.weighted_vertex_normals`, trimesh's default).
+    A crease that ends inside a smooth patch does not cut it (smooth_shade cuts patches, not
+    edges). The normals are cached on the mesh, so a scene saves them with it."""
+    m = mesh.copy()
+    m.merge_vertices(merge_tex=True, merge_norm=True)
+    m.remove_unreferenced_vertices()
+    adjacency_angles = m.face_adjacency_angles
+    if len(adjacency_angles) and adjacency_angles.max() > np.radians(crease_deg):
+        m = trimesh.graph.smooth_shade(m, angle=np.radians(crease_deg), facet_minarea=None)
+    normals = trimesh.geometry.weighted_vertex_normals(
+        vertex_count=len(m.vertices), faces=m.faces, face_normals=m.face_normals, face_angles=m.face_angles)
+    out = trimesh.Trimesh(m.vertices, m.faces, vertex_normals=normals, process=False)
+    return out
+
+
+def check_units(meshes: dict[str, tuple[str, trimesh.Trimesh]], units: str) -> None:
+    """Refuse sizes implausible for ``units`` (``meshes``: name -> (class, mesh in file units)):
+    a liver must be 20-500 mm across (the largest side of its bounding box), a scene without a
+    liver 20-2000 mm. The error names the unit that would fit."""
+    livers = [m for c, m in meshes.values() if c == "liver"]
+    parts = livers or [m for _, m in meshes.values()]
+    lo = np.min([m.bounds[0] for m in parts], axis=0)
+    hi = np.max([m.bounds[1] for m in parts], axis=0)
+    across = float(np.max(hi - lo))  # file units
+    low, high = LIVER_ACROSS_MM if livers else SCENE_ACROSS_MM
+    what = "the liver" if livers else "the scene"
+    size_mm = across * UNITS[units]
+    if low <= size_mm <= high:
+        return
+    fits = [u for u, f in UNITS.items() if low <= across * f <= high]
+    hint = f"; the files are probably in {fits[0]} (--units {fits[0]})" if fits else ""
+    raise UserError(f"{what} is {size_mm:.4g} mm across with --units {units}, not {low:g}-{high:g} mm{hint}")
+
+
+def scale_mesh(mesh: trimesh.Trimesh, factor: float) -> trimesh.Trimesh:
+    """``mesh`` scaled by ``factor`` (to mm), keeping loaded vertex normals."""
+    if factor == 1.0:
+        return mesh
+    normals = mesh._cache["vertex_normals"] if has_vertex_normals(mesh) else None
+    out = trimesh.Trimesh(np.asarray(mesh.vertices) * factor, mesh.faces, process=False)
+    if normals is not None:
+        out = trimesh.Trimesh(out.vertices, out.faces, vertex_normals=normals, process=False)
+    return out
 
 
 def parse_vector(text: str, n: int, what: str) -> np.ndarray:

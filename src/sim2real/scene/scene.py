@@ -4,11 +4,18 @@ Layout on disk::
 
     SCENE/
       scene.json        {"format": "sim2real-scene/1", "name", "objects": [{"name", "class",
-                         "mesh"}], "camera_region": {"center", "radii"}, "up", "metadata"}
+                         "mesh", "normals"?}], "classes": {class: {"label", "a_ref", "palette"}},
+                         "camera_region": {"center", "radii"}, "up", "anterior",
+                         "source_units", "metadata"}
       meshes/NAME.ply   one binary PLY per object (any trimesh format is read on load)
 
 The scene knows nothing about rendering. Object order defines the object ids of the
-G-buffers; :data:`CLASSES` fixes the class order used by labels and colours.
+G-buffers; the scene's class table (:class:`sim2real.scene.classes.ClassTable`) gives each
+class its label id and colours. Meshes are stored in millimetres whatever unit they were
+imported in (``source_units``). An object with ``"normals": "mesh"`` carries its own vertex
+normals in its PLY (smooth normals made at import); others get area-weighted vertex normals
+from the ray caster. Scenes written before these fields existed load with the defaults
+(the paper's class table, anterior +z, millimetres).
 """
 
 from __future__ import annotations
@@ -25,24 +32,23 @@ import trimesh
 
 from sim2real.errors import UserError
 from sim2real.fileio import read_json
+from sim2real.scene.classes import (
+    BACKGROUND_PALETTE, DEFAULT_CLASSES, LABEL_BACKGROUND, PAPER_CLASSES, ClassTable, check_name,
+)
+from sim2real.scene.conventions import ANTERIOR, UNITS
 
-CLASSES: tuple[str, ...] = ("liver", "fat", "ligament", "abdominal_wall", "gallbladder")
-"""Object classes in their fixed order (background = -1)."""
+CLASSES: tuple[str, ...] = PAPER_CLASSES
+"""The paper's five classes, label ids 0..4 (those of the procedural scenes). Other classes come
+from a scene's class table (:mod:`sim2real.scene.classes`)."""
 
-LABEL_BACKGROUND = 255
-"""Value of pixels without a surface in uint8 label images; other values index :data:`CLASSES`."""
 LABEL_PALETTE: dict[str, tuple[int, int, int]] = {
-    "liver": (200, 40, 40),
-    "fat": (245, 200, 40),
-    "ligament": (70, 190, 230),
-    "abdominal_wall": (150, 80, 200),
-    "gallbladder": (40, 180, 60),
-    "background": (0, 0, 0),
-}
-"""Display colour of each label (red, yellow, light blue, purple, green; black): colour previews
-of exported labels and the palette of the stand-in real domain's label PNGs."""
+    **{c: DEFAULT_CLASSES[c].palette for c in PAPER_CLASSES}, "background": BACKGROUND_PALETTE}
+"""Display colour of the paper's five labels (red, yellow, light blue, purple, green; black)."""
+
 
 FORMAT = "sim2real-scene/1"
+__all__ = ["CLASSES", "LABEL_BACKGROUND", "LABEL_PALETTE", "UNITS", "CameraRegion", "ClassTable", "Scene",
+           "SceneObject", "check_mesh"]
 
 
 @dataclass
@@ -50,10 +56,11 @@ class SceneObject:
     name: str
     cls: str
     mesh: trimesh.Trimesh
+    own_normals: bool = False
+    """The mesh carries smooth vertex normals made at import (saved in its PLY)."""
 
     def __post_init__(self) -> None:
-        if self.cls not in CLASSES:
-            raise UserError(f"unknown class '{self.cls}' for object '{self.name}' (known: {', '.join(CLASSES)})")
+        check_name(self.cls)
         check_mesh(self.mesh, self.name)
 
 
@@ -95,6 +102,13 @@ class Scene:
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
     """World direction towards the patient's head; it appears upwards in random views."""
     metadata: dict = field(default_factory=dict)
+    class_table: ClassTable | None = None
+    """Label id and colours of each class of the scene; None: the defaults (unknown classes are
+    refused). Reduced to the scene's own classes."""
+    anterior: np.ndarray = field(default_factory=lambda: np.array(ANTERIOR))
+    """World direction towards the patient's front (the side cameras look at the liver from)."""
+    source_units: str = "mm"
+    """Unit of the files the meshes were imported from (they are stored in mm)."""
 
     def __post_init__(self) -> None:
         if not self.objects:
@@ -102,10 +116,14 @@ class Scene:
         names = [o.name for o in self.objects]
         if len(set(names)) != len(names):
             raise UserError(f"scene '{self.name}' has duplicate object names")
-        self.up = np.asarray(self.up, dtype=np.float64).reshape(3)
-        if not np.all(np.isfinite(self.up)) or np.linalg.norm(self.up) < 1e-9:
-            raise UserError("scene 'up' must be a non-zero finite vector")
-        self.up = self.up / np.linalg.norm(self.up)
+        self.up = _direction(self.up, "up")
+        self.anterior = _direction(self.anterior, "anterior")
+        if abs(float(self.up @ self.anterior)) > 0.99:
+            raise UserError("scene 'up' (head) and 'anterior' directions must not be parallel")
+        if self.source_units not in UNITS:
+            raise UserError(f"scene units must be one of {', '.join(UNITS)}, got '{self.source_units}'")
+        table = self.class_table if self.class_table is not None else ClassTable.defaults()
+        self.class_table = table.subset(self.classes)
 
     @property
     def classes(self) -> tuple[str, ...]:
@@ -121,12 +139,20 @@ class Scene:
     # --- persistence ---------------------------------------------------------------------------
 
     def to_json(self) -> dict:
+        objects = []
+        for o in self.objects:
+            objects.append({"name": o.name, "class": o.cls, "mesh": f"meshes/{o.name}.ply"})
+            if o.own_normals:
+                objects[-1]["normals"] = "mesh"
         return {
             "format": FORMAT,
             "name": self.name,
-            "objects": [{"name": o.name, "class": o.cls, "mesh": f"meshes/{o.name}.ply"} for o in self.objects],
+            "objects": objects,
+            "classes": self.class_table.to_json(),
             "camera_region": self.camera_region.to_json(),
             "up": self.up.tolist(),
+            "anterior": self.anterior.tolist(),
+            "source_units": self.source_units,
             "metadata": self.metadata,
         }
 
@@ -158,7 +184,9 @@ class Scene:
         try:
             (tmp / "meshes").mkdir()
             for o in self.objects:
-                o.mesh.export(tmp / "meshes" / f"{o.name}.ply", file_type="ply", encoding="binary")
+                # vertex_normal None (trimesh's default): normals only if cached, as before
+                o.mesh.export(tmp / "meshes" / f"{o.name}.ply", file_type="ply", encoding="binary",
+                              vertex_normal=True if o.own_normals else None)
             (tmp / "scene.json").write_text(json.dumps(self.to_json(), indent=2) + "\n")
             if directory.exists():
                 directory.rmdir()
@@ -181,18 +209,33 @@ class Scene:
         try:
             objects = []
             for entry in spec["objects"]:
+                own = entry.get("normals") == "mesh"
                 mesh = load_mesh(root / entry["mesh"], entry["name"])
-                objects.append(SceneObject(entry["name"], entry["class"], mesh))
+                if own and "vertex_normals" not in mesh._cache:
+                    raise UserError(f"mesh of object '{entry['name']}' in {root} lacks the vertex normals scene.json promises")
+                objects.append(SceneObject(entry["name"], entry["class"], mesh, own))
             region = spec["camera_region"]
+            table = (ClassTable.from_json(spec["classes"], f"{spec_path}") if "classes" in spec
+                     else ClassTable.migrate(o.cls for o in objects))
             return cls(
                 name=str(spec.get("name", root.name)),
                 objects=objects,
                 camera_region=CameraRegion(region["center"], region["radii"]),
                 up=np.array(spec.get("up", [0.0, 1.0, 0.0])),
                 metadata=dict(spec.get("metadata", {})),
+                class_table=table,
+                anterior=np.array(spec.get("anterior", ANTERIOR)),
+                source_units=str(spec.get("source_units", "mm")),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise UserError(f"{spec_path} is not a valid scene description ({type(e).__name__}: {e})") from None
+
+
+def _direction(v, what: str) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
+        raise UserError(f"scene '{what}' must be a non-zero finite vector")
+    return v / np.linalg.norm(v)
 
 
 def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:

@@ -1,8 +1,11 @@
 """Random camera poses (training views) and smooth trajectories (test sequences).
 
 Random poses follow the paper's data: the camera centre lies in the scene's camera region and
-outside every organ, it looks at a point of the liver that it can see, and the scene's ``up``
-(towards the patient's head) points up in the image.
+outside every organ, it looks at a point of the liver's anterior side (the scene's
+``anterior``) that it can see, and the scene's ``up`` (towards the patient's head) points up
+in the image. A pose whose view shows more than :data:`MAX_BACKGROUND` background (rays that
+escape through a hole of an open mesh) is drawn again; ``caster.skipped_background`` counts
+those.
 
 Trajectories pass a cubic spline through a few random look-from / look-at keys, so the camera
 pans across the scene with varying distance (paper: 100 frames, 20 s at 5 fps).
@@ -32,35 +35,43 @@ from sim2real.scene.camera import Camera, intrinsics_from_fov, invert_rigid, loo
 from sim2real.scene.tum import read_tum
 
 
+MAX_BACKGROUND = 0.3
+"""Largest share of background pixels of a random training view (estimated on a coarse grid of
+rays, :meth:`~sim2real.render.raycast.RayCaster.background_share`)."""
+
+
 def _liver_targets(caster) -> tuple[np.ndarray, int]:
     scene = caster.scene
     ids = scene.objects_of("liver") or list(range(len(scene.objects)))
     k = ids[0]
     mesh = scene.objects[k].mesh
     v = np.asarray(mesh.vertices)
-    up_facing = np.asarray(mesh.vertex_normals)[:, 2] > 0.2  # the anterior side
-    return (v[up_facing] if up_facing.any() else v), k
+    front = np.asarray(mesh.vertex_normals) @ scene.anterior > 0.2  # the anterior side
+    return (v[front] if front.any() else v), k
 
 
-def sample_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed: int, max_tries: int = 200) -> list[Camera]:
+def sample_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed: int, max_tries: int = 200,
+                 max_background: float = MAX_BACKGROUND) -> list[Camera]:
     """``n`` random training views of ``caster.scene`` (see module docstring)."""
-    return list(iter_poses(caster, n, height, width, fov_x_deg, seed, max_tries))
+    return list(iter_poses(caster, n, height, width, fov_x_deg, seed, max_tries, max_background))
 
 
 def iter_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed: int,
-               max_tries: int = 200) -> Iterator[Camera]:
+               max_tries: int = 200, max_background: float = MAX_BACKGROUND) -> Iterator[Camera]:
     """The cameras of :func:`sample_poses`, one at a time (a renderer draws them as it goes).
     The arguments are checked now, not at the first camera."""
     if n < 1:
         raise UserError(f"the number of views must be at least 1, got {n}")
     K = intrinsics_from_fov(width, height, fov_x_deg)
-    return _poses(caster, n, K, height, width, np.random.default_rng(seed), max_tries)
+    return _poses(caster, n, K, height, width, np.random.default_rng(seed), max_tries, max_background)
 
 
 def _poses(caster, n: int, K: np.ndarray, height: int, width: int, rng: np.random.Generator,
-           max_tries: int) -> Iterator[Camera]:
+           max_tries: int, max_background: float = MAX_BACKGROUND) -> Iterator[Camera]:
     scene = caster.scene
     targets, liver = _liver_targets(caster)
+    if not hasattr(caster, "skipped_background"):
+        caster.skipped_background = 0
     for _ in range(n):
         for _try in range(max_tries):
             eye = scene.camera_region.sample(rng, 1)[0]
@@ -72,10 +83,16 @@ def _poses(caster, n: int, K: np.ndarray, height: int, width: int, rng: np.rando
             if not ok.any():
                 continue
             target = cand[np.nonzero(ok)[0][0]]
-            yield Camera(K, look_at(eye, target, scene.up), height, width)
+            cam = Camera(K, look_at(eye, target, scene.up), height, width)
+            # closed scenes (no ray escapes) draw exactly the poses they drew before this check
+            if max_background < 1.0 and caster.background_share(cam) > max_background:
+                caster.skipped_background += 1
+                continue
+            yield cam
             break
         else:
-            raise UserError(f"could not place a camera in scene '{scene.name}' that sees the liver; check its camera region")
+            raise UserError(f"could not place a camera in scene '{scene.name}' that sees the liver with at most "
+                            f"{max_background:.0%} background; check its camera region")
 
 
 def linear_path(caster, frames: int, height: int, width: int, fov_x_deg: float, step_mm: float,
