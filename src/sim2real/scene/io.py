@@ -9,12 +9,14 @@ always, OBJ often) smooth, angle-weighted ones.
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from sim2real.errors import UserError
+from sim2real.scene.blend import blend_to_glb
 from sim2real.scene.classes import ClassTable
 from sim2real.scene.conventions import DEFAULT_CREASE_DEG, UNITS
 from sim2real.scene.scene import check_mesh
@@ -44,8 +46,16 @@ def _as_trimesh(geom, label: str) -> trimesh.Trimesh:
 
 
 def load_parts(path: str | os.PathLike) -> dict[str, trimesh.Trimesh]:
-    """All triangle meshes of a file, keyed by part name, in world coordinates."""
+    """All triangle meshes of a file, keyed by part name, in world coordinates. A ``.blend``
+    file is exported to GLB by Blender's module first (:mod:`sim2real.scene.blend`)."""
     path = Path(path)
+    if path.suffix.lower() == ".blend":
+        if not path.is_file():
+            raise UserError(f"mesh file {path} does not exist")
+        with tempfile.TemporaryDirectory(prefix="sim2real-blend-") as tmp:
+            glb = Path(tmp) / f"{path.stem}.glb"
+            blend_to_glb(path, glb)
+            return load_parts(glb)
     loaded = _read(path)
     if isinstance(loaded, trimesh.Scene):
         if not loaded.geometry:
@@ -71,13 +81,13 @@ def load_mesh(path: str | os.PathLike, name: str) -> trimesh.Trimesh:
 def class_from_name(name: str, mapping: dict[str, str], table: ClassTable | None = None) -> str:
     """Class of a part: an explicit ``mapping`` entry, else a class of ``table`` (default: the
     default classes) that the part name starts with (case, spaces and '-' ignored: 'Kidney_left'
-    is a kidney, 'Small bowel 2' a small_bowel)."""
+    is a kidney, 'Small bowel 2' and 'SmallBowel' a small_bowel)."""
     if name in mapping:
         return mapping[name]
     known = list(table if table is not None else ClassTable.defaults())
     low = name.lower().replace(" ", "_").replace("-", "_").replace(".", "_")
     for cls in sorted(known, key=len, reverse=True):
-        if low.startswith(cls):
+        if low.startswith(cls) or low.replace("_", "").startswith(cls.replace("_", "")):  # 'AbdominalWall'
             return cls
     raise UserError(
         f"cannot tell the class of mesh part '{name}'; name it with --class '{name}=CLASS' "
