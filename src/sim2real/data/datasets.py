@@ -39,6 +39,7 @@ The texture projection is not done here: it needs gradients and runs in the trai
 from __future__ import annotations
 
 import os
+import sys
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -210,7 +211,14 @@ class TrainPairs(torch.utils.data.Dataset):
 
         caster = self._caster(src)
         c = self.cfg
+        before = getattr(caster, "skipped_background", 0)
         cam = sample_poses(caster, 1, c.height, c.width, c.fov_x_deg, seed=int(rng.integers(0, 2**31)))[0]
+        after = caster.skipped_background
+        if after > before and any(before < m <= after for m in (1, 10, 100, 1000, 10000)):  # a few lines, not one per view
+            from sim2real.scene.trajectory import MAX_BACKGROUND
+
+            print(f"scene '{src.name}': {after} random views skipped so far in this loader process "
+                  f"(more than {MAX_BACKGROUND:.0%} background: rays escape through open meshes)", file=sys.stderr)
         return None, caster.render(cam)
 
     def _caster(self, src: SceneSource):
