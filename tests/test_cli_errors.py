@@ -87,7 +87,8 @@ def test_nan_vertices(capsys, tmp_path):
 
 
 def test_unknown_class(capsys, tmp_path, good_mesh):
-    assert_one_line_error(*_import(capsys, tmp_path, f"{good_mesh}=spleen"), "unknown class 'spleen'")
+    # spleen is a default class now; a class no table names is refused
+    assert_one_line_error(*_import(capsys, tmp_path, f"{good_mesh}=tumour"), "unknown class 'tumour'", "--class-table")
 
 
 def test_camera_region_inside_organ(capsys, tmp_path, good_mesh, wall_mesh):
