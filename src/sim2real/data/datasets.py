@@ -211,7 +211,7 @@ class TrainPairs(torch.utils.data.Dataset):
 
         caster = self._caster(src)
         c = self.cfg
-        before = getattr(caster, "skipped_background", 0)
+        before = caster.skipped_background
         cam = sample_poses(caster, 1, c.height, c.width, c.fov_x_deg, seed=int(rng.integers(0, 2**31)))[0]
         after = caster.skipped_background
         if after > before and any(before < m <= after for m in (1, 10, 100, 1000, 10000)):  # a few lines, not one per view

@@ -96,6 +96,8 @@ class RayCaster:
         self.scene = None if scene is geometry else scene
         self.geometry = geometry
         self.classes = geometry.classes
+        self.skipped_background = 0
+        """Random poses drawn again for too much background (:mod:`sim2real.scene.trajectory`)."""
         self._embree = rtcore_scene.EmbreeScene()
         faces_all, face_offset, n_verts, n_faces = [], [], 0, 0
         for verts, faces in zip(geometry.vertices, geometry.faces):

@@ -198,7 +198,7 @@ class Scene:
 
     @classmethod
     def load(cls, directory: str | os.PathLike) -> "Scene":
-        from sim2real.scene.io import load_mesh
+        from sim2real.scene.io import has_vertex_normals, load_mesh
 
         directory = Path(directory)
         spec_path = directory / "scene.json" if directory.is_dir() else directory
@@ -211,7 +211,7 @@ class Scene:
             for entry in spec["objects"]:
                 own = entry.get("normals") == "mesh"
                 mesh = load_mesh(root / entry["mesh"], entry["name"])
-                if own and "vertex_normals" not in mesh._cache:
+                if own and not has_vertex_normals(mesh):
                     raise UserError(f"mesh of object '{entry['name']}' in {root} lacks the vertex normals scene.json promises")
                 objects.append(SceneObject(entry["name"], entry["class"], mesh, own))
             region = spec["camera_region"]

@@ -70,8 +70,6 @@ def _poses(caster, n: int, K: np.ndarray, height: int, width: int, rng: np.rando
            max_tries: int, max_background: float = MAX_BACKGROUND) -> Iterator[Camera]:
     scene = caster.scene
     targets, liver = _liver_targets(caster)
-    if not hasattr(caster, "skipped_background"):
-        caster.skipped_background = 0
     for _ in range(n):
         for _try in range(max_tries):
             eye = scene.camera_region.sample(rng, 1)[0]
