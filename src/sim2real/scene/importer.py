@@ -20,10 +20,17 @@ from sim2real.render.region import fit_camera_region
 from sim2real.scene.classes import ClassTable
 from sim2real.scene.conventions import UNITS
 from sim2real.scene.io import (
-    NORMALS_SUFFIXES, check_units, class_from_name, has_vertex_normals, load_parts, parse_vector, scale_mesh,
+    NORMALS_SUFFIXES,
+    check_mesh,
+    check_units,
+    class_from_name,
+    has_vertex_normals,
+    load_parts,
+    parse_vector,
+    scale_mesh,
     smooth_normals,
 )
-from sim2real.scene.scene import CameraRegion, Scene, SceneObject, check_mesh
+from sim2real.scene.scene import CameraRegion, Scene, SceneObject
 
 
 def _mapping(items: list[str]) -> dict[str, str]:

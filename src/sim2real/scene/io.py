@@ -19,7 +19,6 @@ from sim2real.errors import UserError
 from sim2real.scene.blend import blend_to_glb
 from sim2real.scene.classes import ClassTable
 from sim2real.scene.conventions import DEFAULT_CREASE_DEG, UNITS
-from sim2real.scene.scene import check_mesh
 
 LIVER_ACROSS_MM = (20.0, 500.0)
 """Plausible size of a liver (largest side of its bounding box), mm."""
@@ -28,6 +27,18 @@ SCENE_ACROSS_MM = (20.0, 2000.0)
 NORMALS_SUFFIXES = (".stl", ".obj")
 """File types whose meshes get smooth normals at import when they carry none."""
 
+
+
+def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
+    """Refuse meshes the ray caster cannot use: empty, non-triangle, non-finite."""
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise UserError(f"mesh '{name}' is not a triangle mesh")
+    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+        raise UserError(f"mesh '{name}' is empty (no triangles)")
+    if mesh.faces.ndim != 2 or mesh.faces.shape[1] != 3:
+        raise UserError(f"mesh '{name}' is not made of triangles")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise UserError(f"mesh '{name}' has NaN or infinite vertices")
 
 def _read(path: Path) -> trimesh.Trimesh | trimesh.Scene:
     if not path.is_file():

@@ -33,9 +33,15 @@ import trimesh
 from sim2real.errors import UserError
 from sim2real.fileio import read_json
 from sim2real.scene.classes import (
-    BACKGROUND_PALETTE, DEFAULT_CLASSES, LABEL_BACKGROUND, PAPER_CLASSES, ClassTable, check_name,
+    BACKGROUND_PALETTE,
+    DEFAULT_CLASSES,
+    LABEL_BACKGROUND,
+    PAPER_CLASSES,
+    ClassTable,
+    check_name,
 )
 from sim2real.scene.conventions import ANTERIOR, UNITS
+from sim2real.scene.io import check_mesh, has_vertex_normals, load_mesh
 
 CLASSES: tuple[str, ...] = PAPER_CLASSES
 """The paper's five classes, label ids 0..4 (those of the procedural scenes). Other classes come
@@ -48,7 +54,7 @@ LABEL_PALETTE: dict[str, tuple[int, int, int]] = {
 
 FORMAT = "sim2real-scene/1"
 __all__ = ["CLASSES", "LABEL_BACKGROUND", "LABEL_PALETTE", "UNITS", "CameraRegion", "ClassTable", "Scene",
-           "SceneObject", "check_mesh"]
+           "SceneObject"]
 
 
 @dataclass
@@ -198,8 +204,6 @@ class Scene:
 
     @classmethod
     def load(cls, directory: str | os.PathLike) -> "Scene":
-        from sim2real.scene.io import has_vertex_normals, load_mesh
-
         directory = Path(directory)
         spec_path = directory / "scene.json" if directory.is_dir() else directory
         if not spec_path.is_file():
@@ -236,15 +240,3 @@ def _direction(v, what: str) -> np.ndarray:
     if not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
         raise UserError(f"scene '{what}' must be a non-zero finite vector")
     return v / np.linalg.norm(v)
-
-
-def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
-    """Refuse meshes the ray caster cannot use: empty, non-triangle, non-finite."""
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise UserError(f"mesh '{name}' is not a triangle mesh")
-    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
-        raise UserError(f"mesh '{name}' is empty (no triangles)")
-    if mesh.faces.ndim != 2 or mesh.faces.shape[1] != 3:
-        raise UserError(f"mesh '{name}' is not made of triangles")
-    if not np.all(np.isfinite(mesh.vertices)):
-        raise UserError(f"mesh '{name}' has NaN or infinite vertices")

@@ -34,7 +34,6 @@ from sim2real.fileio import atomic_write_text, read_json_or_none
 from sim2real.scene.camera import Camera, intrinsics_from_fov, invert_rigid, look_at, rotation_to_quaternion
 from sim2real.scene.tum import read_tum
 
-
 MAX_BACKGROUND = 0.3
 """Largest share of background pixels of a random training view (estimated on a coarse grid of
 rays, :meth:`~sim2real.render.raycast.RayCaster.background_share`)."""
