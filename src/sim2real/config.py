@@ -135,9 +135,10 @@ class DataConfig:
     """Horizontal field of view of random simulated views rendered on the fly."""
     workers: int = -1
     """DataLoader worker processes (ray casting and image decoding happen there); 0 loads in
-    the training process. -1 (automatic): the CPU cores this process may use, shared among the
-    ranks of its node, less one for the training process itself, at least 1 and at most
-    ``AUTO_WORKERS_MAX``. On the 2-core dev CPU one worker makes 4.3 paper-size samples/s from
+    the training process. -1 (automatic): the project's worker rule
+    (``sim2real.threads.worker_count``): the CPU cores this process may use, shared evenly among
+    the ranks of its node, less one for the training process itself, at least 1, no fixed cap
+    (fewer where ``/dev/shm`` cannot hold their samples, data/shm.py). On the 2-core dev CPU one worker makes 4.3 paper-size samples/s from
     fresh ray casts and 11 from cached views (benchmarks/bench_data.py), so 20 it/s needs 5 such
     workers (cached: 3)."""
     path_step_mm: float = 0.5
@@ -192,9 +193,6 @@ class TrainConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     data: DataConfig = field(default_factory=DataConfig)
 
-
-AUTO_WORKERS_MAX = 8
-"""Upper bound of ``data.workers = -1`` (more rarely pays and costs shared memory per worker)."""
 
 
 def to_dict(cfg: Any) -> dict:

@@ -21,6 +21,31 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+def local_ranks() -> int:
+    """Training processes on this node: torchrun's ``LOCAL_WORLD_SIZE``, 1 outside torchrun."""
+    try:
+        return max(1, int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
+    except ValueError:
+        return 1
+
+
+def worker_count(jobs: int | None = None, reserve: int = 0) -> int:
+    """The project's one rule for how many worker processes a stage starts.
+
+    The cores this process may use (:func:`usable_cores`) are shared evenly by the training
+    processes of its node (:func:`local_ranks`: under ``torchrun --nproc-per-node G`` each rank
+    gets ``cores // G``), less ``reserve`` for the calling process itself (the training loop
+    reserves 1: it runs the optimiser and feeds the GPU); at most one worker per job (``jobs``,
+    when known) and at least 1. There is no fixed cap: on a 64-core node with 8 GPUs each rank's
+    loader gets 7 workers, on a 16-core single-GPU host 15. Every worker runs one compute thread
+    (:func:`single_thread_worker`), so the workers never oversubscribe the cores."""
+    per_rank = usable_cores() // local_ranks() - max(0, int(reserve))
+    n = max(1, per_rank)
+    if jobs is not None:
+        n = min(n, max(1, int(jobs)))
+    return n
+
+
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 

@@ -8,12 +8,13 @@ supplementary: "random, linear trajectories comparable to the motion in real seq
 one random resized crop for all three). A views folder in ``--scenes`` is ray-cast from its
 scene folder: cached views are not paths.
 
-Sample keys (the DataLoader adds the batch dimension), for frames ``t`` = 0, 1, 2:
+Sample keys (the DataLoader adds the batch dimension; compact dtypes in transit, as for view
+pairs), for frames ``t`` = 0, 1, 2:
 
 =====================  =============  =====================================================
 key                    shape          meaning
 =====================  =============  =====================================================
-``step``, ``scene``    ()             as for view pairs (data/datasets.py)
+``step``, ``scene``    ()             as for view pairs (data/pairs.py)
 ``a_ref_t`` ...        (3, H, W) ...  view tensors of frame t (data/tensors.py)
 ``uv_10``, ``uv_21``   (H, W, 2)      position of frame t's pixels in frame t-1 (ground-truth
                                       flow as a backward warp: w(x_{t-1}) samples there)
@@ -27,7 +28,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from sim2real.data.datasets import TrainPairs
+from sim2real.data.pairs import TrainPairs
+from sim2real.data.real import RealSequences
+from sim2real.data.tensors import compact, view_tensors
+from sim2real.render.warp import correspondences
+from sim2real.scene.trajectory import linear_path
 
 FRAMES = 3
 
@@ -36,16 +41,16 @@ class TrainTriplets(TrainPairs):
     """Step-indexed triplets (see the module docstring); the real folder must hold sequences."""
 
     def __init__(self, sources, real, cfg, seed: int, rank: int = 0):
-        from sim2real.data.real import RealSequences
-
         super().__init__(sources, real, cfg, seed, rank)
         self.sequences = RealSequences(real.folder, FRAMES)
 
-    def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
-        from sim2real.data.tensors import view_tensors
-        from sim2real.render.warp import correspondences
-        from sim2real.scene.trajectory import linear_path
+    def transfer_bytes(self) -> int:
+        """Upper bound of one sample's bytes in transit: three views, two correspondences, three
+        real crops (see :meth:`TrainPairs.transfer_bytes`)."""
+        per_px = FRAMES * self.VIEW_BYTES_PER_PIXEL + (FRAMES - 1) * 9 + FRAMES * 3
+        return per_px * self.cfg.height * self.cfg.width + 4096
 
+    def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
         rng = self.rng(step)
         k = int(rng.integers(0, len(self.sources)))
         caster = self._caster(self.sources[k])
@@ -61,4 +66,4 @@ class TrainTriplets(TrainPairs):
                 out[f"visible_{t}{t - 1}"] = torch.from_numpy(visible)
         for t, real in enumerate(self.sequences.sample(rng, c.height, c.width, c.real_scale_min, c.real_scale_max)):
             out[f"real_{t}"] = torch.from_numpy(np.ascontiguousarray(real))
-        return out
+        return compact(out)

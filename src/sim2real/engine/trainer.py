@@ -20,6 +20,11 @@ One iteration (``step`` counts from 0):
    (``weight/<name>``) and the weighted totals (``gen/total``, ``dis/total``) apart.
    Learning rates follow StepLR (halved every ``optim.lr_halve_every``).
 
+The loader's samples arrive in compact dtypes and are widened on the device (data/tensors.py);
+the time the loop waits for them is logged per interval (``time/data_wait_s`` per step and
+``time/data_wait_share`` of the wall time, metrics.jsonl): a share well above 0 means the loader,
+not the device, sets the pace (docs/gpu.md).
+
 Every loss term is checked for NaN/inf before its optimiser steps; a non-finite loss stops the
 run with a UserError naming the last good checkpoint. On CUDA the forward passes run under
 bf16 autocast with channels-last images and networks (no loss scaling is needed for bf16);
@@ -43,10 +48,12 @@ from typing import Callable
 import numpy as np
 import torch
 
-from sim2real.config import AUTO_WORKERS_MAX, TrainConfig, to_dict
+from sim2real.config import TrainConfig, to_dict
 from sim2real.validation import validate
 from sim2real.data.datasets import StepSampler, make_dataset, resolve_scenes
 from sim2real.data.real import INDEX as REAL_INDEX, RealImages
+from sim2real.data.shm import loader_workers_for_shm
+from sim2real.data.tensors import widen
 from sim2real.engine import checkpoint as ckpt
 from sim2real.engine import distributed, precision
 from sim2real.engine.observe import Observer
@@ -54,7 +61,7 @@ from sim2real.engine.runlock import LOCK_NAME, RunLock, close_inherited
 from sim2real.engine.stop import StopSignals, ignore_in_worker
 from sim2real.errors import UserError
 from sim2real.methods import get_method
-from sim2real.threads import single_thread_worker, usable_cores
+from sim2real.threads import single_thread_worker, worker_count
 
 def resolve_device(name: str, local_rank: int = 0) -> torch.device:
     if name not in ("auto", "cpu", "cuda"):
@@ -88,13 +95,17 @@ def _remove_if_only_lock(out: Path) -> None:
 
 
 def loader_workers(workers: int) -> int:
-    """``data.workers`` with -1 (automatic) resolved: the cores this process may use, shared by
-    the ranks of its node (``LOCAL_WORLD_SIZE``, set by torchrun), less one for the training
-    process itself; at least 1, at most ``AUTO_WORKERS_MAX``."""
+    """``data.workers`` with -1 (automatic) resolved by the project's worker rule
+    (:func:`sim2real.threads.worker_count`): this rank's share of the node's cores, less one for
+    the training process itself, at least 1, no fixed cap."""
     if workers >= 0:
         return workers
-    per_rank = usable_cores() // max(1, int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
-    return max(1, min(AUTO_WORKERS_MAX, per_rank - 1))
+    return worker_count(reserve=1)
+
+
+PREFETCH = 2
+"""Samples each loader worker prepares ahead (its shared-memory bound: 2 x 8 MiB at most for a
+paper-size pair, data/shm.py). With one worker per core a GPU step waits for none."""
 
 
 def _adam(group, cfg: TrainConfig) -> torch.optim.Adam:
@@ -227,7 +238,8 @@ class Trainer:
         random.seed(cfg.seed)
         np.random.seed(cfg.seed)
         torch.manual_seed(cfg.seed)
-        self.gen, self.dis = self.method.build(self.sources)
+        with torch.device("cpu"):  # built on the host (the same initial weights on every device), then moved
+            self.gen, self.dis = self.method.build(self.sources)
         if state is not None:
             self.method.check_resume(state, self.sources, resume)
         if init_state is not None:
@@ -334,12 +346,14 @@ class Trainer:
         return precision.autocast(self.device, self.amp)
 
     def _to_device(self, batch: dict) -> dict:
+        """A loader batch on the device: copied in its compact dtypes (data/tensors.py), widened
+        there; channels-last images where the device runs them."""
         out = {}
         for k, v in batch.items():
             if k in self.method.host_keys:  # Python lists: read on the host, never moved (not even by DDP)
                 out[k] = v.tolist()
                 continue
-            v = v.to(self.device, non_blocking=True)
+            v = widen({k: v.to(self.device, non_blocking=True)})[k]
             if self.channels_last and k in self.method.image_keys:
                 v = v.contiguous(memory_format=torch.channels_last)
             out[k] = v
@@ -400,10 +414,12 @@ class Trainer:
         return losses
 
     def _loader(self):
-        w = loader_workers(self.cfg.data.workers)
+        w = loader_workers_for_shm(loader_workers(self.cfg.data.workers), PREFETCH, self.dataset.transfer_bytes(),
+                                   automatic=self.cfg.data.workers < 0)
+        self.loader_workers = w
         return torch.utils.data.DataLoader(
             self.dataset, batch_size=1, sampler=StepSampler(self.step, self.cfg.iterations), num_workers=w,
-            pin_memory=self.cuda, prefetch_factor=4 if w else None, persistent_workers=False,
+            pin_memory=self.cuda, prefetch_factor=PREFETCH if w else None, persistent_workers=False,
             worker_init_fn=_worker_init if w else None,
         )
 
@@ -432,14 +448,21 @@ class Trainer:
                     self.save_checkpoint()  # step 0: a run killed at once can still --resume
                 first = self.step
                 stop = self.step if self._stop_requested(None, signals) else cfg.iterations
-                it = iter(self._loader()) if self.step < stop else None
+                host = torch.device("cpu")  # the loader is host code (torch's own seeds and collation included)
+                with host:
+                    it = iter(self._loader()) if self.step < stop else None
+                wait_s, wait_steps, interval_t0 = 0.0, 0, time.perf_counter()
                 while self.step < stop:
+                    t_wait = time.perf_counter()
                     try:
-                        batch = next(it)
+                        with host:
+                            batch = next(it)
                     except UserError as e:
                         raise UserError(_worker_message(e)) from None
+                    wait_s, wait_steps = wait_s + time.perf_counter() - t_wait, wait_steps + 1
                     step = self.step
-                    losses = self.train_step(self._to_device(batch), step)
+                    batch = self._to_device(batch)
+                    losses = self.train_step(batch, step)
                     self.step = step + 1
                     obs.accumulate(losses)
                     obs.step_done()
@@ -451,7 +474,12 @@ class Trainer:
                         stop = self.step
                     if self.step % cfg.log_every == 0 or self.step == stop:
                         lrs = {k: s.get_last_lr()[0] for k, s in self.schedulers.items()}
-                        obs.log(self.step, lrs, {f"weight/{k}": v for k, v in self.method.loss_weights(step).items()})
+                        now = time.perf_counter()
+                        timing = {"time/data_wait_s": wait_s / max(wait_steps, 1),
+                                  "time/data_wait_share": wait_s / max(now - interval_t0, 1e-9)}
+                        wait_s, wait_steps, interval_t0 = 0.0, 0, now
+                        obs.log(self.step, lrs, {**timing, **{f"weight/{k}": v for k, v in
+                                                              self.method.loss_weights(step).items()}})
                     if step == first or self.step % cfg.image_every == 0:
                         obs.images(self.step, self.method.image_rows(batch, self.last_out))
                     self.last_out = None

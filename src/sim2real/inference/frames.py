@@ -12,22 +12,21 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
 from sim2real.render.gbuffer import GBuffer
-from sim2real.threads import usable_cores
+from sim2real.threads import usable_cores, worker_count
 
 POOL_MIN_RAYS = 32 * 256 * 512
 """Below this many rays in all (about 2-3 s of casting on one core) the rays are cast in-process:
 starting spawned workers (each loads the scene and builds its BVH) costs about as much."""
-MAX_AUTO_WORKERS = 4
 
 
 def auto_workers(cameras: Sequence) -> int:
     """Ray-casting processes for ``cameras``: 1 (in-process) for short or small sequences or on
-    one core, else ``min(cores, 4)``."""
-    cores = usable_cores()
+    one core, else the project's worker rule (:func:`sim2real.threads.worker_count`: every core
+    of this process's share, at most one per frame)."""
     rays = sum(int(c.height) * int(c.width) for c in cameras)
-    if rays < POOL_MIN_RAYS or cores < 2 or len(cameras) < 4:
+    if rays < POOL_MIN_RAYS or usable_cores() < 2 or len(cameras) < 4:
         return 1
-    return min(cores, MAX_AUTO_WORKERS, len(cameras))
+    return worker_count(jobs=len(cameras))
 
 
 def iter_gbuffers(scene_dir: str | os.PathLike, cameras: Sequence, workers: int | None = None, chunk: int = 8,

@@ -273,7 +273,8 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
         raise UserError(f"checkpoint {path} lacks '{e.args[0]}'") from None
     method = get_method(cfg)
     dev = device if isinstance(device, torch.device) else resolve_device(str(device))
-    gen, objects = method.inference_stage(state, path)
+    with torch.device("cpu"):  # built on the host from the checkpoint's tensors, then moved
+        gen, objects = method.inference_stage(state, path)
     infos = []
     for k, (s, n_obj) in enumerate(zip(scenes_raw, objects)):
         scene_dir = Path(s["scene_dir"]) if s.get("scene_dir") else None

@@ -54,9 +54,11 @@ def ms_ssim_loss(x: torch.Tensor, y: torch.Tensor, win: int = 11, scales: int = 
     check_ssim_size(x.shape[-2], x.shape[-1], win)
     w = MS_SSIM_WEIGHTS[:scales]
     weights = [v / sum(w) for v in w]
-    gx, gy = grey(x).float(), grey(y).float()
+    # the grey conversion too: a bf16 network output is widened before the weighted sum
+    gx, gy = grey(x.float()), grey(y.float())
     # fp32 even under autocast, the window convolutions included: in bf16, sigma^2 = E[x^2] - E[x]^2
     # cancels to <= 0, pytorch-msssim clamps the negative contrast terms to 0, and the loss is a
     # constant 1 without gradient (measured: 1.0 under CPU bf16 autocast vs 0.80 in fp32)
-    with torch.autocast(gx.device.type, enabled=False):
+    # pytorch-msssim builds its window without a device: on the images' device from the start
+    with torch.autocast(gx.device.type, enabled=False), torch.device(gx.device):
         return 1 - ms_ssim(gx, gy, data_range=1.0, size_average=True, win_size=win, weights=weights)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 
+import kornia
 import torch
 
 from sim2real.losses.ssim import grey, ms_ssim_loss
@@ -42,25 +43,27 @@ STRUCTURES = ("ms_ssim", "edges")
 def edge_recall_loss(a: torch.Tensor, x: torch.Tensor, contrast: float = 0.02, sigma: float = 1.0,
                      power: float = 1.0) -> torch.Tensor:
     """Edge recall of ``x`` at the edges of ``a`` (module docstring), averaged over the batch;
-    a, x (B, 3, H, W) in [-1, 1]."""
-    import kornia
-
+    a, x (B, 3, H, W) in [-1, 1]. Computed in fp32 even under autocast: ``contrast`` (0.02-0.08
+    grey per pixel) is within a few steps of bf16's resolution (2**-8 relative), and the
+    blurred gradients of a bf16 convolution would move edges in and out of it."""
     if a.shape != x.shape:
         raise ValueError(f"edge_recall_loss: shapes differ, {tuple(a.shape)} vs {tuple(x.shape)}")
     if not contrast > 0 or not sigma >= 0 or not power > 0:
         raise ValueError(f"edge_recall_loss: needs contrast > 0, sigma >= 0 and power > 0, got {contrast}, {sigma}, "
                          f"{power}")
-    ga, gx = grey(a).float(), grey(x).float()
-    if sigma > 0:
-        k = 2 * math.ceil(3 * sigma) + 1
-        ga, gx = (kornia.filters.gaussian_blur2d(g, (k, k), (sigma, sigma)) for g in (ga, gx))
-    da = kornia.filters.spatial_gradient(ga)[:, 0]  # (B, 2, H, W): d/dx, d/dy
-    dx = kornia.filters.spatial_gradient(gx)[:, 0]
-    m2 = (da**2).sum(1)
-    across = (da * dx).sum(1).abs() / (m2.sqrt() * contrast + 1e-12)
-    w = m2**power
-    w = w / (w.sum((1, 2), keepdim=True) + 1e-30)
-    return (w * (1 - torch.tanh(across))).sum((1, 2)).mean()
+    # kornia builds its kernels without a device: on the images' device from the start
+    with torch.autocast(a.device.type, enabled=False), torch.device(a.device):
+        ga, gx = grey(a.float()), grey(x.float())
+        if sigma > 0:
+            k = 2 * math.ceil(3 * sigma) + 1
+            ga, gx = (kornia.filters.gaussian_blur2d(g, (k, k), (sigma, sigma)) for g in (ga, gx))
+        da = kornia.filters.spatial_gradient(ga)[:, 0]  # (B, 2, H, W): d/dx, d/dy
+        dx = kornia.filters.spatial_gradient(gx)[:, 0]
+        m2 = (da**2).sum(1)
+        across = (da * dx).sum(1).abs() / (m2.sqrt() * contrast + 1e-12)
+        w = m2**power
+        w = w / (w.sum((1, 2), keepdim=True) + 1e-30)
+        return (w * (1 - torch.tanh(across))).sum((1, 2)).mean()
 
 
 def structure_ab_loss(a: torch.Tensor, b_hat: torch.Tensor, L) -> torch.Tensor:

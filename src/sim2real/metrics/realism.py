@@ -196,9 +196,9 @@ def _gradient_magnitude(x: Tensor) -> Tensor:
 @torch.no_grad()
 def _proxy_stats(images: ImageSource, name: str, bins: int, grad_max: float, batch_size: int) -> dict:
     n_pix = 0.0
-    s = torch.zeros(3, dtype=torch.float64)
-    s2 = torch.zeros(3, dtype=torch.float64)
-    hist = torch.zeros(bins, dtype=torch.float64)
+    s = torch.zeros(3, dtype=torch.float64, device="cpu")
+    s2 = torch.zeros(3, dtype=torch.float64, device="cpu")
+    hist = torch.zeros(bins, dtype=torch.float64, device="cpu")
     grad_sum = 0.0
     n_grad = 0
     for b in _batches(images, name, batch_size):

@@ -323,7 +323,7 @@ def render_views(
 
     from sim2real.fileio import fsync_files
     from sim2real.pool import WorkerPool
-    from sim2real.threads import usable_cores
+    from sim2real.threads import worker_count
 
     if caster is None:
         if not isinstance(scene, (str, os.PathLike)):
@@ -335,7 +335,7 @@ def render_views(
     else:
         geometry = caster.geometry
     paths = [str(p) for p in paths]
-    workers = workers or min(len(paths), usable_cores())
+    workers = workers or worker_count(jobs=len(paths))
     done: list[str] = []
     with tqdm(total=len(paths), desc="render", unit="view", disable=not progress) as bar, \
             WorkerPool(workers, caster_setup, (geometry,), state=caster) as pool:

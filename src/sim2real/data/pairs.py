@@ -1,0 +1,163 @@
+"""The training samples of the image methods: views of one simulated scene (two, i and j, or one,
+i) and one real image per step.
+
+A method declares the kind of sample it trains on (:func:`sim2real.data.datasets.make_dataset`):
+``view_pairs`` (i, j and their correspondences) or ``views`` (i alone: the keys ``*_j``,
+``uv_ij`` and ``visible_ij`` are absent, and no view j is ray-cast). Views come from
+:class:`~sim2real.data.sources.SceneSource`: cached G-buffers of a views folder, or fresh random
+poses ray-cast in the loader worker.
+
+The dataset is map-style and indexed by the **training step**: everything random in sample ``s``
+comes from ``numpy.random.default_rng((seed, rank, s))``. The data stream therefore depends only
+on (seed, rank, step), not on the number of workers or on where a run was resumed, and a
+checkpoint needs no loader state.
+
+Sample keys (one step; the DataLoader adds the batch dimension). Samples travel in the compact
+dtypes of :func:`sim2real.data.tensors.compact` (the trainer widens them on its device with
+:func:`sim2real.data.tensors.widen`); the table gives the widened form:
+
+=================  =============  =========================================================
+key                shape          meaning
+=================  =============  =========================================================
+``step``           ()             training step the sample belongs to
+``scene``          ()             index into the dataset's ``sources`` (and the textures)
+``a_ref_i/_j``     (3, H, W)      reference rendering in [-1, 1]
+``object_id_i/_j`` (H, W) int64   object ids, -1 background
+``points_i/_j``    (H, W, 3)      world surface points (mm)
+``normal_i/_j``    (H, W, 3)      world unit normals
+``uv_ij``          (H, W, 2)      position of view i's pixels in view j (pixel units)
+``visible_ij``     (H, W) bool    i's pixel is visible in j (render.warp.correspondences)
+``real``           (3, H, W)      random resized crop of a real image in [-1, 1]
+=================  =============  =========================================================
+
+The texture projection is not done here: it needs gradients and runs in the training process.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections import OrderedDict
+
+import numpy as np
+import torch
+
+from sim2real.config import DataConfig
+from sim2real.data.real import RealImages
+from sim2real.data.sources import SceneSource
+from sim2real.data.tensors import compact, view_tensors
+from sim2real.render.gbuffer import GBuffer
+from sim2real.render.raycast import RayCaster
+from sim2real.render.warp import correspondences
+from sim2real.scene.scene import Scene
+from sim2real.scene.trajectory import MAX_BACKGROUND, sample_poses
+
+PAIR_TRIES = 10
+_CACHE_VIEWS = 64  # decoded G-buffers kept per worker
+
+
+class TrainPairs(torch.utils.data.Dataset):
+    """Map-style dataset whose index is the training step (see module docstring); ``pairs=False``
+    gives single views."""
+
+    def __init__(self, sources: list[SceneSource], real: RealImages, cfg: DataConfig, seed: int, rank: int = 0,
+                 pairs: bool = True):
+        self.pairs = bool(pairs)
+        self.sources = sources
+        self.real = real
+        self.cfg = cfg
+        self.seed = int(seed)
+        self.rank = int(rank)
+        self._casters: dict = {}
+        self._views: OrderedDict = OrderedDict()
+        self._pid = os.getpid()
+
+    VIEW_BYTES_PER_PIXEL = 26
+    """One view in transit (:func:`~sim2real.data.tensors.compact`): a_ref and normals fp16 (6 + 6),
+    object ids int16 (2), points fp32 at most (12)."""
+
+    def transfer_bytes(self) -> int:
+        """Upper bound of one sample's bytes in transit (shared memory, pinned copy): the views,
+        the correspondences (uv fp32 8, visible 1 per pixel) and the uint8 real crop (3)."""
+        per_px = self.VIEW_BYTES_PER_PIXEL * (2 if self.pairs else 1) + (9 if self.pairs else 0) + 3
+        return per_px * self.cfg.height * self.cfg.width + 4096
+
+    def __len__(self) -> int:  # indexed by step; the sampler decides the range
+        return 2**62
+
+    def __getstate__(self):  # Embree scenes and caches stay out of worker pickles
+        state = self.__dict__.copy()
+        state["_casters"], state["_views"] = {}, OrderedDict()
+        return state
+
+    def rng(self, step: int) -> np.random.Generator:
+        return np.random.default_rng((self.seed, self.rank, int(step)))
+
+    def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
+        rng = self.rng(step)
+        k = int(rng.integers(0, len(self.sources)))
+        src = self.sources[k]
+        ki, gi = self._view(src, rng)
+        views = [("i", gi)]
+        out = {"step": torch.tensor(int(step)), "scene": torch.tensor(k)}
+        if self.pairs:
+            # A j that sees too little of view i is redrawn (not the pair: half the ray casting
+            # of a redraw).
+            best = None
+            for _ in range(PAIR_TRIES):
+                _, gj = self._view(src, rng, avoid=ki)
+                uv, visible = correspondences(gi, gj)
+                overlap = float(visible.mean())
+                if best is None or overlap > best[0]:
+                    best = (overlap, gj, uv, visible)
+                if overlap >= self.cfg.min_overlap:
+                    break
+            _, gj, uv, visible = best
+            views.append(("j", gj))
+            out["uv_ij"] = torch.from_numpy(uv)
+            out["visible_ij"] = torch.from_numpy(visible)
+        c = self.cfg
+        real = self.real.sample(rng, c.height, c.width, c.real_scale_min, c.real_scale_max)
+        for tag, g in views:
+            out.update({key: v[0] for key, v in view_tensors([g], tag).items()})
+        out["real"] = torch.from_numpy(np.ascontiguousarray(real))
+        return compact(out)
+
+    # --- views ---------------------------------------------------------------------------------
+
+    def _view(self, src: SceneSource, rng: np.random.Generator, avoid: int | None = None):
+        """``(index, G-buffer)``: a cached view of ``src`` other than number ``avoid`` (index into
+        its files), or a fresh random pose ray-cast now (index None)."""
+        if src.cached:
+            n = len(src.view_files)
+            k = int(rng.integers(0, n if avoid is None else n - 1))
+            if avoid is not None and k >= avoid:
+                k += 1
+            return k, self._cached_view(src.view_files[k])
+        caster = self._caster(src)
+        c = self.cfg
+        before = caster.skipped_background
+        cam = sample_poses(caster, 1, c.height, c.width, c.fov_x_deg, seed=int(rng.integers(0, 2**31)))[0]
+        after = caster.skipped_background
+        if after > before and any(before < m <= after for m in (1, 10, 100, 1000, 10000)):  # a few lines, not one per view
+            print(f"scene '{src.name}': {after} random views skipped so far in this loader process "
+                  f"(more than {MAX_BACKGROUND:.0%} background: rays escape through open meshes)", file=sys.stderr)
+        return None, caster.render(cam)
+
+    def _caster(self, src: SceneSource):
+        if os.getpid() != self._pid:  # a forked worker must not reuse the parent's Embree objects
+            self._casters, self._pid = {}, os.getpid()
+        if src.name not in self._casters:
+            self._casters[src.name] = RayCaster(Scene.load(src.scene_dir))
+        return self._casters[src.name]
+
+    def _cached_view(self, path: Path):
+        g = self._views.get(path)
+        if g is None:
+            g = GBuffer.load(path)
+            self._views[path] = g
+            if len(self._views) > _CACHE_VIEWS:
+                self._views.popitem(last=False)
+        else:
+            self._views.move_to_end(path)
+        return g
