@@ -11,6 +11,7 @@ import io
 import json
 import os
 import tempfile
+import threading
 from pathlib import Path
 from typing import Iterator
 
@@ -35,12 +36,39 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             tmp.unlink()
 
 
+_deferred: list[str] | None = None
+"""Files written under :func:`deferred_fsync`, not yet flushed to disk."""
+_deferred_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def deferred_fsync() -> Iterator[list[str]]:
+    """Within this block :func:`atomic_write_bytes` (and the writers built on it) skips its
+    per-file fsync and records the file instead; the block yields that list, for one
+    :func:`fsync_files` of all of them at its end (or of the folder they are renamed into). For a
+    command that writes thousands of small files into a folder it renames into place when
+    complete (``sim2real translate``): each file is still atomic under its name, the folder as a
+    whole becomes durable at once. Not nested; thread-safe (writer threads may record)."""
+    global _deferred
+    if _deferred is not None:
+        raise RuntimeError("deferred_fsync blocks do not nest")
+    _deferred = []
+    try:
+        yield _deferred
+    finally:
+        _deferred = None
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+            if _deferred is None:
+                f.flush()
+                os.fsync(f.fileno())
+    if _deferred is not None:
+        with _deferred_lock:
+            _deferred.append(str(path))
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,9 +38,15 @@ from typing import Sequence
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from sim2real.config import to_dict
 from sim2real.engine import precision
 from sim2real.errors import UserError
+from sim2real.fileio import atomic_write_json, deferred_fsync, fsync_files, prepare_output_dir
+from sim2real.inference.export import export_ground_truth
+from sim2real.inference.frames import LazyGBuffers, chunked, iter_gbuffers, iter_view_files
+from sim2real.inference.video import BackgroundFrameWriter, _rate
 from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.classes import ClassTable
 
@@ -364,23 +371,36 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
     Writes ``frames/000000.png ...``, ``video.mp4`` (H.264 at ``fps``, default the trajectory's),
     ``ground_truth/`` (:func:`sim2real.inference.export.export_ground_truth`, with ``tum/rgb`` =
     the translated frames) and, last, ``translate.json``. G-buffers are streamed: a chunk of
-    frames is ray-cast (or read), translated, written and kept only as an uncompressed scratch
-    file for the export (deleted at the end). Returns the manifest.
+    frames is ray-cast (or read; by every core, :func:`sim2real.inference.frames.iter_gbuffers`),
+    translated, and handed to a writer thread that writes the PNG frames and encodes the video
+    while the next chunk is translated (:class:`~sim2real.inference.video.BackgroundFrameWriter`);
+    each G-buffer is kept only as an uncompressed scratch file for the export (deleted at the end).
+
+    Everything is written into a hidden sibling folder without a flush per file; when complete,
+    all its files are flushed to disk at once and the folder is renamed to ``out``: a reader sees
+    no ``out`` content or all of it. Returns the manifest.
     """
-    from tqdm import tqdm
-
-    from sim2real.config import to_dict
-    from sim2real.fileio import atomic_write_image, atomic_write_json, prepare_output_dir
-    from sim2real.inference.export import export_ground_truth
-    from sim2real.inference.frames import LazyGBuffers, chunked, iter_gbuffers, iter_view_files
-    from sim2real.inference.video import _rate, write_video
-
     if batch < 1:
         raise UserError(f"--batch must be >= 1, got {batch}")
     fps = float(source.fps if fps is None else fps)
     _rate(fps)
+    final = prepare_output_dir(out)
+    out = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-", dir=final.parent))
+    try:
+        with deferred_fsync():
+            manifest = _translate_into(model, source, out, batch, fps, workers, progress)
+        fsync_files([p for p in out.rglob("*") if p.is_file() and not p.is_symlink()])
+        os.replace(out, final)  # onto the empty folder prepare_output_dir accepted
+        fsync_files([final.parent])
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    return manifest
+
+
+def _translate_into(model: TrainedModel, source: TranslateSource, out: Path, batch: int, fps: float,
+                    workers: int | None, progress: bool) -> dict:
     n = source.frames
-    out = prepare_output_dir(out)
     frames_dir = out / "frames"
     frames_dir.mkdir()
     scratch = out / ".gbuffers"
@@ -396,9 +416,9 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
             gbuffers = iter_view_files(source.view_files)
             gt_paths = list(source.view_files)
 
-        def stream():
-            i = 0
-            seq = model.sequence(source.scene_name, batch)  # one sequence: a stateful method continues
+        i = 0
+        seq = model.sequence(source.scene_name, batch)  # one sequence: a stateful method continues
+        with BackgroundFrameWriter(frames_dir, out / "video.mp4", fps, depth=2 * batch) as writer:
             for chunk in chunked(gbuffers, batch):
                 if source.cameras is not None:
                     for k, g in enumerate(chunk):
@@ -409,12 +429,10 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
                     elif f.shape[:2] != size[0]:
                         raise UserError(f"frame {i} is {f.shape[0]}x{f.shape[1]}, frame 0 is {size[0][0]}x{size[0][1]}; "
                                         f"a video has one size")
-                    atomic_write_image(frames_dir / f"{i:06d}.png", f)
+                    writer.put(f)
                     i += 1
                     bar.update()
-                    yield f
-
-        count = write_video(stream(), out / "video.mp4", fps=fps)
+        count = writer.count
         bar.close()
         translate_s = time.perf_counter() - t0
         gt_bar = tqdm(total=n, desc="ground truth", unit="frame", disable=not progress)

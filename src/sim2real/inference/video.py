@@ -8,11 +8,17 @@ yuv420p needs an even width and height. A frame with an odd side is padded by on
 bottom and/or right edge (repeating the last row / column), so a 45x77 sequence becomes a
 46x78 video whose top-left 45x77 pixels are the frames; the PNG frames (:func:`write_frames`)
 keep the exact size. The video is written under a temporary name and renamed when complete.
+
+:class:`BackgroundFrameWriter` writes the PNG frames and encodes the video in a thread, so that
+``sim2real translate`` translates the next frames meanwhile (PNG's zlib and libx264 release the
+GIL).
 """
 
 from __future__ import annotations
 
 import os
+import queue
+import threading
 from fractions import Fraction
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -167,3 +173,71 @@ def write_frames(frames: Iterable[np.ndarray], out_dir: str | os.PathLike) -> li
         atomic_write_image(out / name, a)
         names.append(name)
     return names
+
+
+class BackgroundFrameWriter:
+    """PNG frames ``frames_dir/000000.png ...`` and an H.264 video of them, written by one thread
+    while the caller produces the next frames::
+
+        with BackgroundFrameWriter(frames_dir, video_path, fps) as w:
+            for frame in frames:
+                w.put(frame)
+        count = w.count
+
+    At most ``depth`` frames wait in the queue (memory stays bounded). An error of the writer
+    (an odd frame, a full disk) is raised in the caller at its next :meth:`put` or at the end of
+    the block; an error of the caller stops the writer, leaving the video unfinished (its
+    temporary file removed)."""
+
+    def __init__(self, frames_dir: str | os.PathLike, video: str | os.PathLike, fps: float, depth: int = 16):
+        self.frames_dir, self.video, self.fps = Path(frames_dir), Path(video), float(fps)
+        self._queue: queue.Queue = queue.Queue(maxsize=max(1, int(depth)))
+        self._error: BaseException | None = None
+        self._abort = False
+        self.count = 0
+        self._thread = threading.Thread(target=self._run, name="frame-writer", daemon=True)
+
+    def _frames(self) -> Iterator[np.ndarray]:
+        i = 0
+        while True:
+            frame = self._queue.get()
+            if frame is None:
+                return
+            if self._abort:
+                raise RuntimeError("frame writer stopped")
+            atomic_write_image(self.frames_dir / f"{i:06d}.png", frame)
+            i += 1
+            yield frame
+
+    def _run(self) -> None:
+        try:
+            self.count = write_video(self._frames(), self.video, fps=self.fps)
+        except BaseException as e:  # handed to the caller
+            self._error = e
+            while True:  # unblock a caller waiting on a full queue
+                try:
+                    if self._queue.get(timeout=0.1) is None:
+                        break
+                except queue.Empty:
+                    if self._abort:
+                        break
+
+    def __enter__(self) -> "BackgroundFrameWriter":
+        self._thread.start()
+        return self
+
+    def put(self, frame: np.ndarray) -> None:
+        if self._error is not None:
+            raise self._error
+        self._queue.put(frame)
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            self._abort = True
+        try:
+            self._queue.put(None, timeout=60)
+        except queue.Full:
+            self._abort = True
+        self._thread.join()
+        if exc_type is None and self._error is not None:
+            raise self._error

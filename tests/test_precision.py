@@ -1,0 +1,80 @@
+"""bf16 autocast on the CPU (the CUDA recipe's numerics): every method preset and structure term
+takes a finite training step close to the fp32 one, and the structure and SSIM terms compute in
+fp32 under autocast."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from torch.utils.data import default_collate
+
+from sim2real.engine import precision
+from sim2real.engine.trainer import Trainer
+from sim2real.losses.ssim import ms_ssim_loss
+from sim2real.losses.structure import edge_recall_loss
+from sim2real.methods import METHOD_PRESETS, get_method
+from train_data import tiny_config
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+# Loss terms of one bf16 step against fp32: bf16 keeps 8 significant bits (relative rounding
+# 2**-9 per operation); through a few dozen layers the terms of the tiny nets moved by at most
+# 1.6 % (measured over the presets below), so 5 % relative or 0.02 absolute (near-zero terms).
+REL, ABS = 0.05, 0.02
+
+
+def _images(seed: int, shape=(2, 3, 48, 80)) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    a = torch.nn.functional.avg_pool2d(torch.rand(shape, generator=g) * 2 - 1, 5, 1, 2)  # soft edges
+    return a, (a + 0.1 * torch.randn(shape, generator=g)).clamp(-1, 1)
+
+
+def test_edge_recall_is_fp32_under_autocast():
+    """Under bf16 autocast the term equals its fp32 value (its convolutions would otherwise run
+    in bf16, where the 0.02 grey contrast is a few rounding steps), also for a bf16 network output."""
+    a, x = _images(0)
+    want = edge_recall_loss(a, x)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        got = edge_recall_loss(a, x)
+        got_bf16_input = edge_recall_loss(a, x.to(torch.bfloat16))
+    assert got.dtype == torch.float32
+    assert torch.equal(got, want)
+    assert got_bf16_input.item() == pytest.approx(edge_recall_loss(a, x.to(torch.bfloat16).float()).item(), abs=1e-7)
+
+
+def test_ms_ssim_is_fp32_under_autocast():
+    a, x = _images(1, (2, 3, 64, 96))
+    want = ms_ssim_loss(a, x, win=3, scales=3)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        got = ms_ssim_loss(a, x, win=3, scales=3)
+    assert got.dtype == torch.float32 and torch.equal(got, want)
+    assert 0.01 < want.item() < 1  # a real comparison, not the degenerate constant 1 of bf16 variances
+
+
+CASES = [(name, "ms_ssim") for name in sorted(METHOD_PRESETS)] + [("ours", "edges")]
+
+
+@pytest.mark.parametrize("name,structure", CASES)
+def test_bf16_step_is_finite_and_close_to_fp32(name, structure, request, tmp_path, monkeypatch):
+    cfg = tiny_config(name, **{"loss__ab_structure": structure})
+    if hasattr(cfg.method, "vc_start"):
+        cfg.method.vc_start = 0  # the view-consistency term in the step too
+    video = get_method(cfg).data == "triplets"
+    scenes, real = request.getfixturevalue("video_train_inputs" if video else "train_inputs")
+    fp32 = Trainer(cfg, [scenes], real, tmp_path / "fp32", progress=False)
+    monkeypatch.setattr(precision, "mixed_precision", lambda device: True)
+    bf16 = Trainer(cfg, [scenes], real, tmp_path / "bf16", progress=False)
+    try:
+        assert bf16.amp and not fp32.amp
+        batch = default_collate([fp32.dataset[0]])
+        torch.manual_seed(1)  # a stochastic method (styles, noise) draws the same in both steps
+        l32 = fp32.train_step(fp32._to_device(batch), 0)
+        torch.manual_seed(1)
+        l16 = bf16.train_step(bf16._to_device(batch), 0)
+    finally:
+        fp32.close()
+        bf16.close()
+    assert l16.keys() == l32.keys()
+    for k in l32:
+        assert torch.isfinite(l16[k]) and l16[k].dtype == torch.float32, k
+        assert l16[k].item() == pytest.approx(l32[k].item(), rel=REL, abs=ABS), (k, l16[k].item(), l32[k].item())
