@@ -83,7 +83,10 @@ def _runners(impls, cfg, scene, real, sources, batches, base, device_name):
 
             device = torch.device("cuda" if device_name == "cuda" else "cpu")
             ref = AuthorsStyleTrainer(cfg, sources, device)
-            bs = [{k: v.to(device) if k not in ("scene", "step") else v for k, v in b.items()} for b in batches]
+            from sim2real.data.tensors import complete_on_device, widen
+
+            bs = [complete_on_device(widen({k: v.to(device) if k not in ("scene", "step") else v for k, v in b.items()}))
+                  for b in batches]
             lists = [ref.precompute(b) for b in bs]  # offline index lists: not timed
             runners[impl] = (device, lambda s, r=ref, bs=bs, li=lists: r.train_step(bs[s], li[s], s))
     return runners

@@ -31,6 +31,8 @@ from pathlib import Path
 import torch
 from torch.utils.data import default_collate
 
+from sim2real.data.tensors import complete_on_device, widen
+
 EVAL_SEED = 987654321
 
 
@@ -122,7 +124,7 @@ def main() -> None:
     cfg = config_from_dict(latest["config"])
     sources = resolve_scenes(latest["inputs"]["scenes"], cfg.data.height, cfg.data.width)
     ds = TrainPairs(sources, RealImages(latest["inputs"]["real"], verify=False), cfg.data, seed=EVAL_SEED)
-    batches = [default_collate([ds[s]]) for s in range(args.samples)]
+    batches = [complete_on_device(widen(default_collate([ds[s]]))) for s in range(args.samples)]
     real = image_stats(torch.cat([b["real"] for b in batches]))
     object_ids = torch.cat([b["object_id_i"] for b in batches])
     a_ref = image_stats(torch.cat([b["a_ref_i"] for b in batches]))

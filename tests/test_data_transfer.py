@@ -92,3 +92,22 @@ def test_translate_ray_casting_uses_every_core(monkeypatch):
 
     assert frames.auto_workers([Cam()] * 100) == 32  # was capped at 4
     assert frames.auto_workers([Cam()] * 2) == 1  # too few rays for a pool
+
+
+def test_a_ref_on_the_device_equals_the_reference_rendering(procedural_caster):
+    """a_ref rendered from the transferred inputs (torch) against render/reference.py (numpy),
+    on two ray-cast views: the same formula to float rounding, and within fp16's rounding of its
+    inputs when they travel compact."""
+    from sim2real.data.tensors import complete_on_device, view_inputs
+    from sim2real.render.reference import reference_rendering
+    from sim2real.scene.trajectory import sample_poses
+
+    gbuffers = [procedural_caster.render(c) for c in sample_poses(procedural_caster, 2, 48, 96, 75.0, seed=4)]
+    want = torch.from_numpy(np.stack([reference_rendering(g).transpose(2, 0, 1) for g in gbuffers]) * 2 - 1)
+    inputs = view_inputs(gbuffers, "i", max_objects=len(gbuffers[0].classes) + 2)  # padded class list
+    exact = complete_on_device(inputs)
+    assert set(exact) == {"a_ref_i", "object_id_i", "points_i", "normal_i"}
+    assert (exact["a_ref_i"] - want).abs().max() <= 1e-5
+    assert want.std() > 0.1  # a rendered view, not an empty one
+    via_compact = complete_on_device(widen(compact(inputs)))
+    assert (via_compact["a_ref_i"] - want).abs().max() <= 4e-3  # about one 8-bit level

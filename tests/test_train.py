@@ -280,7 +280,7 @@ def test_ablations_are_presets_of_ours(inputs, tmp_path):
     assert no_tex.gen.translator.enc_a.model[0].conv.in_channels == 3
     assert no_tex.dis.dis_a.cnns[0][0].conv.in_channels == 3
     sample = no_tex.dataset[0]
-    assert "a_ref_j" not in sample and "uv_ij" not in sample  # view j is not even ray-cast
+    assert "points_j" not in sample and "uv_ij" not in sample  # view j is not even ray-cast
     batch = no_tex._to_device(default_collate([sample]))
     out = no_tex.method.translate(no_tex.gen, batch, 10)
     assert torch.equal(out["x_a"], batch["a_ref_i"])
@@ -288,7 +288,7 @@ def test_ablations_are_presets_of_ours(inputs, tmp_path):
     # no view consistency: the texture is learned, lambda_vc is 0 at every step
     no_vc = Trainer(tiny_config(method="ours_no_vc"), [scenes], real, tmp_path / "b", progress=False)
     assert "tex" in no_vc.optimizers and no_vc.method.loss_weights(10**6)["vc"] == 0.0
-    assert "a_ref_j" not in no_vc.dataset[0]
+    assert "points_j" not in no_vc.dataset[0]
     assert "gen/vc" not in no_vc.train_step(no_vc._to_device(default_collate([no_vc.dataset[0]])), 10)
     # L1 view consistency: channel-mean |b_i - w(b_j)| over matched pixels (by hand), not the angle
     l1 = Trainer(tiny_config(method="ours_l1_vc", method__vc_start=0), [scenes], real, tmp_path / "c", progress=False)
@@ -378,7 +378,7 @@ def test_samples_depend_on_seed_rank_step_only(inputs, tmp_path_factory):
         assert not torch.equal(s["points_i"], s["points_j"])
         assert s["visible_ij"].float().mean() >= cfg.data.min_overlap
         assert s["real"].shape == (3, 64, 128) and s["real"].dtype == torch.uint8  # widened on the device
-        assert s["a_ref_i"].shape == (3, 64, 128)
+        assert s["distance_i"].shape == (64, 128)  # a_ref is rendered on the device, from this
     assert scenes_seen == {0, 1}
 
 

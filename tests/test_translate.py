@@ -71,6 +71,7 @@ def test_translate_trajectory(inputs, tmp_path, capsys):
     manifest = json.loads((out / "translate.json").read_text())
     assert manifest["frames"] == 5 and manifest["scene"] == f"procedural_{SCENE_SEED:04d}"
     assert not (out / ".gbuffers").exists()  # scratch removed
+    assert not list(tmp_path.glob(".out.partial-*"))  # written beside it, then renamed into place
 
 
 def test_model_api_is_time_independent(inputs):

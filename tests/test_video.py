@@ -55,3 +55,27 @@ def test_write_frames(tmp_path):
         assert np.array_equal(np.array(Image.open(tmp_path / "frames" / name)), f)
     with pytest.raises(UserError):
         write_frames(frames, tmp_path / "frames")  # not empty any more
+
+
+def test_background_writer_writes_frames_and_video(tmp_path):
+    from sim2real.inference.video import BackgroundFrameWriter
+
+    frames = [np.full((18, 30, 3), 40 * k, np.uint8) for k in range(5)]
+    (tmp_path / "f").mkdir()
+    with BackgroundFrameWriter(tmp_path / "f", tmp_path / "v.mp4", fps=5.0, depth=2) as w:
+        for f in frames:
+            w.put(f)
+    assert w.count == 5 and read_video(tmp_path / "v.mp4") == (5, 18, 30)
+    assert sorted(p.name for p in (tmp_path / "f").iterdir()) == [f"{k:06d}.png" for k in range(5)]
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "f" / "000003.png")), frames[3])
+
+
+def test_background_writer_raises_the_writers_error_in_the_caller(tmp_path):
+    from sim2real.inference.video import BackgroundFrameWriter
+
+    (tmp_path / "f").mkdir()
+    with pytest.raises(ValueError, match="frame 2"):
+        with BackgroundFrameWriter(tmp_path / "f", tmp_path / "v.mp4", fps=5.0, depth=1) as w:
+            for k in range(40):  # frame 2 has another size: the writer stops, the caller hears of it
+                w.put(np.zeros((18, 30 if k != 2 else 32, 3), np.uint8))
+    assert not (tmp_path / "v.mp4").exists()

@@ -13,8 +13,10 @@ on (seed, rank, step), not on the number of workers or on where a run was resume
 checkpoint needs no loader state.
 
 Sample keys (one step; the DataLoader adds the batch dimension). Samples travel in the compact
-dtypes of :func:`sim2real.data.tensors.compact` (the trainer widens them on its device with
-:func:`sim2real.data.tensors.widen`); the table gives the widened form:
+dtypes of :func:`sim2real.data.tensors.compact` and carry what a_ref is rendered from
+(:func:`sim2real.data.tensors.view_inputs`) instead of a_ref; the trainer widens them on its
+device and renders a_ref there (:func:`~sim2real.data.tensors.widen`,
+:func:`~sim2real.data.tensors.complete_on_device`). The table gives the completed form:
 
 =================  =============  =========================================================
 key                shape          meaning
@@ -45,7 +47,7 @@ import torch
 from sim2real.config import DataConfig
 from sim2real.data.real import RealImages
 from sim2real.data.sources import SceneSource
-from sim2real.data.tensors import compact, view_tensors
+from sim2real.data.tensors import compact, view_inputs
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.raycast import RayCaster
 from sim2real.render.warp import correspondences
@@ -71,10 +73,11 @@ class TrainPairs(torch.utils.data.Dataset):
         self._casters: dict = {}
         self._views: OrderedDict = OrderedDict()
         self._pid = os.getpid()
+        self.max_objects = max(len(src.classes) for src in sources)
 
-    VIEW_BYTES_PER_PIXEL = 26
-    """One view in transit (:func:`~sim2real.data.tensors.compact`): a_ref and normals fp16 (6 + 6),
-    object ids int16 (2), points fp32 at most (12)."""
+    VIEW_BYTES_PER_PIXEL = 22
+    """One view in transit (:func:`~sim2real.data.tensors.compact`): normals fp16 (6), distance
+    fp16 (2), object ids int16 (2), points fp32 at most (12)."""
 
     def transfer_bytes(self) -> int:
         """Upper bound of one sample's bytes in transit (shared memory, pinned copy): the views,
@@ -119,7 +122,7 @@ class TrainPairs(torch.utils.data.Dataset):
         c = self.cfg
         real = self.real.sample(rng, c.height, c.width, c.real_scale_min, c.real_scale_max)
         for tag, g in views:
-            out.update({key: v[0] for key, v in view_tensors([g], tag).items()})
+            out.update({key: v[0] for key, v in view_inputs([g], tag, self.max_objects).items()})
         out["real"] = torch.from_numpy(np.ascontiguousarray(real))
         return compact(out)
 

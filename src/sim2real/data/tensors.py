@@ -12,7 +12,10 @@ key                    shape, dtype        meaning
 ``tag`` is the view's name in a batch (``i`` or ``j``). The tensors are on the CPU.
 
 Training samples travel in compact dtypes (:func:`compact`) and are widened on the device
-(:func:`widen`).
+(:func:`widen`). Their a_ref is not made by the loader worker: the sample carries what it takes
+(:func:`view_inputs`: ``distance_{tag}``, ``camera_{tag}`` and ``classes_{tag}`` instead of
+``a_ref_{tag}``), and :func:`complete_on_device` renders it where the batch is (on a GPU, in
+microseconds; in a worker it was a fifth of a paper-size sample's CPU time, benchmarks/bench_data.py).
 """
 
 from __future__ import annotations
@@ -21,7 +24,8 @@ import numpy as np
 import torch
 
 from sim2real.render.gbuffer import GBuffer
-from sim2real.render.reference import reference_rendering
+from sim2real.render.reference import ALBEDO, DISTANCE_CLAMP_MM, FALLOFF, reference_rendering
+from sim2real.scene.scene import CLASSES
 
 
 def view_tensors(gbuffers: list[GBuffer], tag: str) -> dict[str, torch.Tensor]:
@@ -35,6 +39,58 @@ def view_tensors(gbuffers: list[GBuffer], tag: str) -> dict[str, torch.Tensor]:
     }
 
 
+def view_inputs(gbuffers: list[GBuffer], tag: str, max_objects: int) -> dict[str, torch.Tensor]:
+    """The view tensors without a_ref, and what :func:`complete_on_device` renders it from:
+    ``distance_{tag}`` (B, H, W) f32 (mm), ``camera_{tag}`` (B, 3) f32 camera position (mm) and
+    ``classes_{tag}`` (B, max_objects) int16, each object's index into
+    :data:`sim2real.scene.scene.CLASSES` (-1 past the scene's objects)."""
+    classes = np.full((len(gbuffers), max_objects), -1, np.int16)
+    for b, g in enumerate(gbuffers):
+        classes[b, : len(g.classes)] = [CLASSES.index(c) for c in g.classes]
+    return {
+        f"object_id_{tag}": torch.from_numpy(np.stack([g.object_id.astype(np.int64) for g in gbuffers])),
+        f"points_{tag}": torch.from_numpy(np.stack([np.asarray(g.points, dtype=np.float32) for g in gbuffers])),
+        f"normal_{tag}": torch.from_numpy(np.stack([np.asarray(g.normal, dtype=np.float32) for g in gbuffers])),
+        f"distance_{tag}": torch.from_numpy(np.stack([np.asarray(g.distance, dtype=np.float32) for g in gbuffers])),
+        f"camera_{tag}": torch.from_numpy(np.stack([g.camera.position.astype(np.float32) for g in gbuffers])),
+        f"classes_{tag}": torch.from_numpy(classes),
+    }
+
+
+def reference_on_device(object_id: torch.Tensor, normal: torch.Tensor, points: torch.Tensor, distance: torch.Tensor,
+                        camera: torch.Tensor, classes: torch.Tensor) -> torch.Tensor:
+    """a_ref (B, 3, H, W) in [-1, 1] on the tensors' device: the formula of
+    :func:`sim2real.render.reference.reference_rendering` (paper Eq. 2), in torch. Inputs as
+    :func:`view_inputs` gives them (widened)."""
+    dev = points.device
+    table = torch.tensor([ALBEDO[c] for c in CLASSES] + [(0.0, 0.0, 0.0)], dtype=torch.float32, device=dev)
+    mask = object_id >= 0
+    b_idx = torch.arange(object_id.shape[0], device=dev)[:, None, None]
+    cls = classes.to(torch.int64)[b_idx, object_id.clamp(min=0)]  # (B, H, W) class per pixel
+    cls = torch.where(mask & (cls >= 0), cls, len(CLASSES))  # background: the zero row
+    to_cam = camera[:, None, None, :] - points
+    view_dir = to_cam / to_cam.norm(dim=-1, keepdim=True).clamp(min=1e-9)
+    diffuse = (normal * view_dir).sum(-1).clamp(0.0, 1.0)
+    d = distance.clamp(max=DISTANCE_CLAMP_MM)
+    a, b, c = FALLOFF
+    shade = (0.9 * diffuse + 0.1) / (a * d * d + b * d + c)
+    out = (table[cls] * shade[..., None]).clamp(0.0, 1.0) * mask[..., None]
+    return out.permute(0, 3, 1, 2) * 2.0 - 1.0
+
+
+def complete_on_device(batch: dict) -> dict:
+    """Render ``a_ref_{tag}`` for every view of a widened batch that carries its
+    :func:`view_inputs` instead, and drop those inputs (the methods see the keys of the module
+    table)."""
+    out = dict(batch)
+    for key in [k for k in batch if k.startswith("distance_")]:
+        tag = key[len("distance_"):]
+        out[f"a_ref_{tag}"] = reference_on_device(out[f"object_id_{tag}"], out[f"normal_{tag}"], out[f"points_{tag}"],
+                                                  out.pop(f"distance_{tag}"), out.pop(f"camera_{tag}"),
+                                                  out.pop(f"classes_{tag}"))
+    return out
+
+
 FP16_POINTS_MAX_MM = 1024.0
 """Surface points travel as fp16 while every coordinate is below this: fp16 keeps 11 significant
 bits, so the rounding error is at most 2**-12 of the magnitude's power of two, 0.25 mm below
@@ -43,14 +99,15 @@ bits, so the rounding error is at most 2**-12 of the magnitude's power of two, 0
 
 def compact(sample: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """A training sample in its transfer dtypes (shared memory, pinned copy, host-to-device):
-    ``a_ref_*`` and ``normal_*`` fp16 (error <= 2**-11 on [-1, 1]), ``points_*`` fp16 under
+    ``a_ref_*`` and ``normal_*`` fp16 (error <= 2**-11 on [-1, 1]), ``distance_*`` fp16 (2**-11
+    relative: 0.05 mm at 100 mm, where a_ref's falloff stops), ``points_*`` fp16 under
     :data:`FP16_POINTS_MAX_MM`, ``object_id_*`` int16 (the G-buffer's own dtype), ``real*`` uint8
     (a crop of an 8-bit image mapped to [-1, 1] by ``/ 127.5 - 1``, so exactly invertible).
     Correspondences (``uv_*``, pixel positions up to the image width) stay fp32. A paper-size pair
     shrinks from 13.6 to 6.5 MiB. :func:`widen` restores the compute dtypes."""
     out = {}
     for k, v in sample.items():
-        if k.startswith(("a_ref_", "normal_")):
+        if k.startswith(("a_ref_", "normal_", "distance_")):
             v = v.to(torch.float16)
         elif k.startswith("points_") and v.numel() and float(v.abs().max()) < FP16_POINTS_MAX_MM:
             v = v.to(torch.float16)

@@ -53,7 +53,7 @@ from sim2real.validation import validate
 from sim2real.data.datasets import StepSampler, make_dataset, resolve_scenes
 from sim2real.data.real import INDEX as REAL_INDEX, RealImages
 from sim2real.data.shm import loader_workers_for_shm
-from sim2real.data.tensors import widen
+from sim2real.data.tensors import complete_on_device, widen
 from sim2real.engine import checkpoint as ckpt
 from sim2real.engine import distributed, precision
 from sim2real.engine.observe import Observer
@@ -346,18 +346,20 @@ class Trainer:
         return precision.autocast(self.device, self.amp)
 
     def _to_device(self, batch: dict) -> dict:
-        """A loader batch on the device: copied in its compact dtypes (data/tensors.py), widened
-        there; channels-last images where the device runs them."""
-        out = {}
+        """A loader batch on the device: copied in its compact dtypes, widened and its a_ref
+        rendered there (data/tensors.py); channels-last images where the device runs them."""
+        moved, host = {}, {}
         for k, v in batch.items():
             if k in self.method.host_keys:  # Python lists: read on the host, never moved (not even by DDP)
-                out[k] = v.tolist()
-                continue
-            v = widen({k: v.to(self.device, non_blocking=True)})[k]
-            if self.channels_last and k in self.method.image_keys:
-                v = v.contiguous(memory_format=torch.channels_last)
-            out[k] = v
-        return out
+                host[k] = v.tolist()
+            else:
+                moved[k] = v.to(self.device, non_blocking=True)
+        out = complete_on_device(widen(moved))
+        if self.channels_last:
+            for k in self.method.image_keys:
+                if k in out:
+                    out[k] = out[k].contiguous(memory_format=torch.channels_last)
+        return {**out, **host}
 
     def _update(self, losses: dict[str, torch.Tensor], weights: dict[str, float], optimizers: list) -> torch.Tensor:
         """One optimiser step on ``sum(weights[k] * losses[k])``; returns that sum, detached."""
