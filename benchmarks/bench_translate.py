@@ -8,12 +8,15 @@ values) on a procedural scene, then measures
   ``--repeats`` timed passes over ``--frames`` frames after one warm-up pass;
 * ``end_to_end_fps`` (``--end-to-end``): :func:`translate_sequence` over a trajectory of
   ``--frames`` frames: ray casting, translation, PNG frames, H.264 video and the ground-truth
-  export, as ``sim2real translate`` runs it.
+  export, as ``sim2real translate`` runs it;
+* ``pipeline_fps`` (``--pipeline``): the same command with the network replaced by a_ref (each
+  frame is its reference rendering): what everything but the network allows, the ceiling a
+  GPU's translation meets. On a CPU the network dominates ``end_to_end_fps``.
 
 On CUDA the run's ``amp`` (bf16) and channels-last are used, as in ``sim2real translate``.
 
 Usage: python benchmarks/bench_translate.py [--presets small,paper] [--device cpu|cuda]
-       [--frames 16] [--batch 8] [--repeats 3] [--end-to-end]
+       [--frames 16] [--batch 8] [--repeats 3] [--end-to-end] [--pipeline]
 """
 
 from __future__ import annotations
@@ -30,6 +33,15 @@ from pathlib import Path
 import numpy as np
 import torch
 from PIL import Image
+
+
+class _ARefSequence:
+    """A stand-in for the network: each frame is its view's reference rendering."""
+
+    def translate(self, chunk):
+        from sim2real.render.reference import reference_rendering, to_uint8
+
+        return [to_uint8(reference_rendering(g)) for g in chunk]
 
 
 def make_run(preset: str, scene_dir: Path, real_dir: Path, out: Path, device: str) -> Path:
@@ -59,6 +71,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--end-to-end", action="store_true")
+    ap.add_argument("--pipeline", action="store_true", help="also time the command with a_ref for the network")
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -79,24 +92,30 @@ def main() -> None:
         for name in args.presets.split(","):
             run = make_run(name, scene_dir, real, tmp / f"run_{name}", args.device)
             model = load_run(run, device=args.device)
-            model.translate_gbuffers(scene.name, gbuffers, args.batch)  # warm-up
-            times = []
-            for _ in range(args.repeats):
-                if model.device.type == "cuda":
-                    torch.cuda.synchronize()
-                t0 = time.perf_counter()
-                model.translate_gbuffers(scene.name, gbuffers, args.batch)
-                if model.device.type == "cuda":
-                    torch.cuda.synchronize()
-                times.append(time.perf_counter() - t0)
-            res = {"model_fps": args.frames / statistics.median(times),
-                   "model_seconds": times, "amp_bf16": model.amp,
-                   "generator_filters": model.cfg.generator.filters}
+            res = {"amp_bf16": model.amp, "generator_filters": model.cfg.generator.filters}
+            if args.repeats > 0:  # --repeats 0: no model timing (e.g. for --pipeline alone)
+                model.translate_gbuffers(scene.name, gbuffers, args.batch)  # warm-up
+                times = []
+                for _ in range(args.repeats):
+                    if model.device.type == "cuda":
+                        torch.cuda.synchronize()
+                    t0 = time.perf_counter()
+                    model.translate_gbuffers(scene.name, gbuffers, args.batch)
+                    if model.device.type == "cuda":
+                        torch.cuda.synchronize()
+                    times.append(time.perf_counter() - t0)
+                res.update(model_fps=args.frames / statistics.median(times), model_seconds=times)
             if args.end_to_end:
                 t0 = time.perf_counter()
                 translate_sequence(model, trajectory_source(model, scene_dir, tmp / "traj.txt"),
                                    tmp / f"out_{name}", batch=args.batch, progress=False)
                 res["end_to_end_fps"] = args.frames / (time.perf_counter() - t0)
+            if args.pipeline:
+                model.sequence = lambda scene_name, batch: _ARefSequence()
+                t0 = time.perf_counter()
+                translate_sequence(model, trajectory_source(model, scene_dir, tmp / "traj.txt"),
+                                   tmp / f"pipe_{name}", batch=args.batch, progress=False)
+                res["pipeline_fps"] = args.frames / (time.perf_counter() - t0)
             results[name] = res
 
     print(json.dumps({

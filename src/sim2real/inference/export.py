@@ -44,6 +44,7 @@ from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.camera import invert_rigid, rotation_to_quaternion
 from sim2real.scene.classes import LABEL_BACKGROUND, ClassTable
 from sim2real.scene.tum import read_tum
+from sim2real.threads import worker_count
 
 FORMAT = "sim2real-ground-truth/1"
 DEPTH_PNG_SCALE = 10.0
@@ -301,8 +302,8 @@ def export_ground_truth(
         else:
             atomic_write_image(tum / "rgb" / _name(i, "png"), to_uint8(reference_rendering(g)))
 
-    # PNG/zlib encoding, numpy and fsync release the GIL: frames go to a few threads.
-    workers = max(1, min(4, os.cpu_count() or 1, n))
+    # PNG/zlib encoding, numpy and fsync release the GIL: frames go to threads, by the worker rule.
+    workers = worker_count(jobs=n)
     if workers == 1:
         for i in range(n):
             write_frame(i)
