@@ -12,7 +12,8 @@ from sim2real.engine import precision
 from sim2real.engine.trainer import Trainer
 from sim2real.losses.ssim import ms_ssim_loss
 from sim2real.losses.structure import edge_recall_loss
-from sim2real.methods import METHOD_PRESETS, get_method
+from sim2real.methods import get_method
+from sim2real.presets import METHOD_PRESETS
 from train_data import tiny_config
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
