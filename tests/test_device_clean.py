@@ -71,3 +71,15 @@ def test_train_resume_translate_evaluate_with_a_meta_default_device(tmp_path_fac
     _cli(capsys, "evaluate", run, "--scenes", scene, "--real", real, "--out", ev, "--views", 2, "--frames", 4,
          "--seg-iterations", 2, "--seg-size", "32x64", "--device", "cpu", "--no-progress")
     assert (ev / "metrics.json").is_file()
+
+
+def test_a_ref_rendered_from_the_sample_with_a_meta_default_device(procedural_caster, meta_default):
+    """The GPU path's a_ref (data/tensors.py): every tensor it makes is on its inputs' device."""
+    from sim2real.data.tensors import complete_on_device, compact, view_inputs, widen
+
+    from sim2real.scene.trajectory import sample_poses
+
+    g = procedural_caster.render(sample_poses(procedural_caster, 1, 32, 64, 75.0, seed=1)[0])
+    batch = complete_on_device(widen(compact(view_inputs([g], "i", len(g.classes)))))
+    assert batch["a_ref_i"].device.type == "cpu" and batch["a_ref_i"].shape == (1, 3, 32, 64)
+    assert batch["a_ref_i"].abs().sum().item() > 0

@@ -47,7 +47,7 @@ import torch
 from sim2real.config import DataConfig
 from sim2real.data.real import RealImages
 from sim2real.data.sources import SceneSource
-from sim2real.data.tensors import compact, view_inputs
+from sim2real.data.tensors import compact, view_inputs, view_tensors
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.raycast import RayCaster
 from sim2real.render.warp import correspondences
@@ -74,16 +74,25 @@ class TrainPairs(torch.utils.data.Dataset):
         self._views: OrderedDict = OrderedDict()
         self._pid = os.getpid()
         self.max_objects = max(len(src.classes) for src in sources)
+        self.a_ref_in_worker = False
+        """Render a_ref in the loader worker (a CPU run: no device to hand it to, and the worker
+        has time while the CPU step runs) instead of shipping what it is made of."""
 
-    VIEW_BYTES_PER_PIXEL = 22
-    """One view in transit (:func:`~sim2real.data.tensors.compact`): normals fp16 (6), distance
-    fp16 (2), object ids int16 (2), points fp32 at most (12)."""
+    VIEW_BYTES_PER_PIXEL = 26
+    """One view in transit (:func:`~sim2real.data.tensors.compact`), at most: normals fp16 (6),
+    object ids int16 (2), points fp32 at most (12), and a_ref fp16 (6) or the distance fp16 (2)."""
 
     def transfer_bytes(self) -> int:
         """Upper bound of one sample's bytes in transit (shared memory, pinned copy): the views,
         the correspondences (uv fp32 8, visible 1 per pixel) and the uint8 real crop (3)."""
         per_px = self.VIEW_BYTES_PER_PIXEL * (2 if self.pairs else 1) + (9 if self.pairs else 0) + 3
         return per_px * self.cfg.height * self.cfg.width + 4096
+
+    def view_keys(self, g: GBuffer, tag: str) -> dict[str, torch.Tensor]:
+        """One view's tensors: with a_ref (:attr:`a_ref_in_worker`) or with its inputs."""
+        if self.a_ref_in_worker:
+            return {k: v[0] for k, v in view_tensors([g], tag).items()}
+        return {k: v[0] for k, v in view_inputs([g], tag, self.max_objects).items()}
 
     def __len__(self) -> int:  # indexed by step; the sampler decides the range
         return 2**62
@@ -122,7 +131,7 @@ class TrainPairs(torch.utils.data.Dataset):
         c = self.cfg
         real = self.real.sample(rng, c.height, c.width, c.real_scale_min, c.real_scale_max)
         for tag, g in views:
-            out.update({key: v[0] for key, v in view_inputs([g], tag, self.max_objects).items()})
+            out.update(self.view_keys(g, tag))
         out["real"] = torch.from_numpy(np.ascontiguousarray(real))
         return compact(out)
 

@@ -30,7 +30,7 @@ import torch
 
 from sim2real.data.pairs import TrainPairs
 from sim2real.data.real import RealSequences
-from sim2real.data.tensors import compact, view_inputs
+from sim2real.data.tensors import compact
 from sim2real.render.warp import correspondences
 from sim2real.scene.trajectory import linear_path
 
@@ -59,7 +59,7 @@ class TrainTriplets(TrainPairs):
         frames = [caster.render(cam) for cam in cams]
         out = {"step": torch.tensor(int(step)), "scene": torch.tensor(k)}
         for t, g in enumerate(frames):
-            out.update({key: v[0] for key, v in view_inputs([g], str(t), self.max_objects).items()})
+            out.update(self.view_keys(g, str(t)))
             if t:
                 uv, visible = correspondences(g, frames[t - 1])
                 out[f"uv_{t}{t - 1}"] = torch.from_numpy(uv)

@@ -194,6 +194,7 @@ class Trainer:
         # the method's training data (a real folder without what it needs is refused here, before
         # the run folder is touched)
         self.dataset = make_dataset(self.method.data, self.sources, self.real, cfg.data, cfg.seed, self.dist.rank)
+        self.dataset.a_ref_in_worker = not self.cuda  # a GPU renders it from the sample (data/tensors.py)
         self.out = Path(out)
         self.ckpt_dir = self.out / "checkpoints"
         self.lock = RunLock(self.out)
