@@ -138,9 +138,9 @@ class DataConfig:
     the training process. -1 (automatic): the project's worker rule
     (``sim2real.threads.worker_count``): the CPU cores this process may use, shared evenly among
     the ranks of its node, less one for the training process itself, at least 1, no fixed cap
-    (fewer where ``/dev/shm`` cannot hold their samples, data/shm.py). On the 2-core dev CPU one worker makes 4.3 paper-size samples/s from
-    fresh ray casts and 11 from cached views (benchmarks/bench_data.py), so 20 it/s needs 5 such
-    workers (cached: 3)."""
+    (fewer where ``/dev/shm`` cannot hold their samples, data/shm.py). One core makes 6.6
+    paper-size samples/s from fresh ray casts and 17.5 from cached views (CPU time,
+    benchmarks/bench_data.py, docs/gpu.md)."""
     path_step_mm: float = 0.5
     """Camera motion per frame (mm) of the short linear paths that the video methods train on
     (data/triplets.py)."""

@@ -41,6 +41,7 @@ import math
 import os
 import random
 import re
+import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -417,8 +418,11 @@ class Trainer:
         return losses
 
     def _loader(self):
-        w = loader_workers_for_shm(loader_workers(self.cfg.data.workers), PREFETCH, self.dataset.transfer_bytes(),
-                                   automatic=self.cfg.data.workers < 0)
+        wanted = loader_workers(self.cfg.data.workers)
+        w = loader_workers_for_shm(wanted, PREFETCH, self.dataset.transfer_bytes(), automatic=self.cfg.data.workers < 0)
+        if w < wanted and self.dist.is_main:
+            print(f"sim2real: {w} loader workers instead of {wanted}: /dev/shm holds no more of their samples "
+                  "(docker run --shm-size=1g for all)", file=sys.stderr)
         self.loader_workers = w
         return torch.utils.data.DataLoader(
             self.dataset, batch_size=1, sampler=StepSampler(self.step, self.cfg.iterations), num_workers=w,
