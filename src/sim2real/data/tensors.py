@@ -13,7 +13,7 @@ key                    shape, dtype        meaning
 
 Training samples travel in compact dtypes (:func:`compact`) and are widened on the device
 (:func:`widen`). Their a_ref is not made by the loader worker: the sample carries what it takes
-(:func:`view_inputs`: ``distance_{tag}``, ``camera_{tag}`` and ``classes_{tag}`` instead of
+(:func:`view_inputs`: ``distance_{tag}``, ``camera_{tag}`` and ``albedo_{tag}`` instead of
 ``a_ref_{tag}``), and :func:`complete_on_device` renders it where the batch is (on a GPU, in
 microseconds; in a worker it was a fifth of a paper-size sample's CPU time, benchmarks/bench_data.py).
 """
@@ -24,8 +24,7 @@ import numpy as np
 import torch
 
 from sim2real.render.gbuffer import GBuffer
-from sim2real.render.reference import ALBEDO, DISTANCE_CLAMP_MM, FALLOFF, reference_rendering
-from sim2real.scene.scene import CLASSES
+from sim2real.render.reference import DISTANCE_CLAMP_MM, FALLOFF, reference_rendering
 
 
 def view_tensors(gbuffers: list[GBuffer], tag: str) -> dict[str, torch.Tensor]:
@@ -42,39 +41,37 @@ def view_tensors(gbuffers: list[GBuffer], tag: str) -> dict[str, torch.Tensor]:
 def view_inputs(gbuffers: list[GBuffer], tag: str, max_objects: int) -> dict[str, torch.Tensor]:
     """The view tensors without a_ref, and what :func:`complete_on_device` renders it from:
     ``distance_{tag}`` (B, H, W) f32 (mm), ``camera_{tag}`` (B, 3) f32 camera position (mm) and
-    ``classes_{tag}`` (B, max_objects) int16, each object's index into
-    :data:`sim2real.scene.scene.CLASSES` (-1 past the scene's objects)."""
-    classes = np.full((len(gbuffers), max_objects), -1, np.int16)
+    ``albedo_{tag}`` (B, max_objects, 3) f32, each object's a_ref colour from the view's class
+    table (zero past the scene's objects)."""
+    albedo = np.zeros((len(gbuffers), max_objects, 3), np.float32)
     for b, g in enumerate(gbuffers):
-        classes[b, : len(g.classes)] = [CLASSES.index(c) for c in g.classes]
+        albedo[b, : len(g.classes)] = g.class_table.albedo(g.classes)
     return {
         f"object_id_{tag}": torch.from_numpy(np.stack([g.object_id.astype(np.int64) for g in gbuffers])),
         f"points_{tag}": torch.from_numpy(np.stack([np.asarray(g.points, dtype=np.float32) for g in gbuffers])),
         f"normal_{tag}": torch.from_numpy(np.stack([np.asarray(g.normal, dtype=np.float32) for g in gbuffers])),
         f"distance_{tag}": torch.from_numpy(np.stack([np.asarray(g.distance, dtype=np.float32) for g in gbuffers])),
         f"camera_{tag}": torch.from_numpy(np.stack([g.camera.position.astype(np.float32) for g in gbuffers])),
-        f"classes_{tag}": torch.from_numpy(classes),
+        f"albedo_{tag}": torch.from_numpy(albedo),
     }
 
 
 def reference_on_device(object_id: torch.Tensor, normal: torch.Tensor, points: torch.Tensor, distance: torch.Tensor,
-                        camera: torch.Tensor, classes: torch.Tensor) -> torch.Tensor:
+                        camera: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
     """a_ref (B, 3, H, W) in [-1, 1] on the tensors' device: the formula of
     :func:`sim2real.render.reference.reference_rendering` (paper Eq. 2), in torch. Inputs as
     :func:`view_inputs` gives them (widened)."""
     dev = points.device
-    table = torch.tensor([ALBEDO[c] for c in CLASSES] + [(0.0, 0.0, 0.0)], dtype=torch.float32, device=dev)
     mask = object_id >= 0
     b_idx = torch.arange(object_id.shape[0], device=dev)[:, None, None]
-    cls = classes.to(torch.int64)[b_idx, object_id.clamp(min=0)]  # (B, H, W) class per pixel
-    cls = torch.where(mask & (cls >= 0), cls, len(CLASSES))  # background: the zero row
+    colour = albedo.float()[b_idx, object_id.clamp(min=0)]  # (B, H, W, 3): each pixel's object colour
     to_cam = camera[:, None, None, :] - points
     view_dir = to_cam / to_cam.norm(dim=-1, keepdim=True).clamp(min=1e-9)
     diffuse = (normal * view_dir).sum(-1).clamp(0.0, 1.0)
     d = distance.clamp(max=DISTANCE_CLAMP_MM)
     a, b, c = FALLOFF
     shade = (0.9 * diffuse + 0.1) / (a * d * d + b * d + c)
-    out = (table[cls] * shade[..., None]).clamp(0.0, 1.0) * mask[..., None]
+    out = (colour * shade[..., None]).clamp(0.0, 1.0) * mask[..., None]
     return out.permute(0, 3, 1, 2) * 2.0 - 1.0
 
 
@@ -87,7 +84,7 @@ def complete_on_device(batch: dict) -> dict:
         tag = key[len("distance_"):]
         out[f"a_ref_{tag}"] = reference_on_device(out[f"object_id_{tag}"], out[f"normal_{tag}"], out[f"points_{tag}"],
                                                   out.pop(f"distance_{tag}"), out.pop(f"camera_{tag}"),
-                                                  out.pop(f"classes_{tag}"))
+                                                  out.pop(f"albedo_{tag}"))
     return out
 
 
