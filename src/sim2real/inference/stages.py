@@ -1,0 +1,421 @@
+"""The stages of ``sim2real evaluate`` (:func:`sim2real.inference.evaluate.evaluate` runs them in
+this order): **views** (random views translated, with a_ref, the ceiling and the floor on the same
+views), **realism** (FID/KID with user-given Inception weights, the weight-free measures, the
+proxy and detail), **segmentation** (Dice), **consistency** (each scene's trajectory: OF error,
+ORB-k, revisit) and **report** (metrics.json, report.md/html, samples). Each stage is a function
+of plain inputs, so that each can be run and tested alone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import re
+import sys
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from sim2real.fileio import atomic_write_image, atomic_write_json
+from sim2real.inference.frames import chunked, iter_gbuffers
+from sim2real.inference.realimages import fit_image, to_nchw
+from sim2real.inference.report import write_report
+from sim2real.inference.rows import PAPER_KS, pool_rows, positions, scalars, sequence_row
+from sim2real.inference.video import write_video
+from sim2real.metrics.consistency import orb_settings_for
+from sim2real.metrics.realism import fid_kid, proxy_colour_texture_distance
+from sim2real.render.motion import MotionMeter
+from sim2real.render.reference import reference_rendering, to_uint8
+from sim2real.render.warp import flow as gt_flow
+from sim2real.scene.trajectory import make_trajectory, sample_poses
+
+VIEW_INDEX0 = 100_000
+"""Anchor frame index (which seeds the sensor noise and picks the floor's appearance) of the first
+random view: apart from the sequences' frame indices 0..T-1."""
+
+Say = Callable[[str], None]
+
+
+def stderr_say(progress: bool) -> Say:
+    """``evaluate: MESSAGE`` lines on stderr, or nothing."""
+    return (lambda msg: print(f"evaluate: {msg}", file=sys.stderr, flush=True)) if progress else (lambda msg: None)
+
+
+# --- views ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class ViewSet:
+    """The random views of every row: ``shown[row]`` one frame per view (the model's first
+    translation), ``scored[row]`` what the realism measures score (the model: every translation
+    of every view, variant after variant), ``liver[i]`` view i's simulated liver mask."""
+
+    shown: dict[str, list]
+    scored: dict[str, list]
+    variants: list[str]
+    liver: list[np.ndarray] = field(default_factory=list)
+
+
+def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, real_imgs: Sequence[np.ndarray], s,
+                rows_shown: Sequence[str], size: tuple[int, int, float], progress: bool = True) -> ViewSet:
+    """Translate ``s.views`` random views (spread evenly over ``scenes``, pairs ``(Scene, dir)``),
+    with a_ref and, when ``anchors`` has the scene, the ceiling and the floor of each view.
+    ``size`` = (H, W, horizontal field of view in degrees); real images are the style sources."""
+    H, W, fov = size
+    variants: dict[str, list] = {}
+    style_rng = np.random.default_rng((s.seed, 1))
+    counts = [s.views // len(scenes) + (1 if k < s.views % len(scenes) else 0) for k in range(len(scenes))]
+    views: dict[str, list] = {r: [] for r in rows_shown}
+    liver: list[np.ndarray] = []
+    bar = tqdm(total=s.views, desc="views", unit="view", disable=not progress)
+    for k, ((sc, d), n) in enumerate(zip(scenes, counts)):
+        if n == 0:
+            continue
+        caster = casters[sc.name]
+        cams = sample_poses(caster, n, H, W, fov, seed=s.seed + 1000 * k)
+        for chunk in chunked(iter_gbuffers(d, cams, s.workers, s.batch, caster=caster), s.batch):
+            styles = [real_imgs[int(i)] for i in style_rng.integers(0, len(real_imgs), len(chunk))]
+            for name, frames in model.translate_views(sc.name, chunk, styles, s.seed + len(liver), s.batch).items():
+                variants.setdefault(name, []).extend(frames)
+            for g in chunk:
+                i = len(liver)
+                liver.append(g.class_index() == 0)
+                views["a_ref"].append(to_uint8(reference_rendering(g)))
+                if sc.name in anchors:
+                    views["ceiling"].append(anchors[sc.name].ceiling(g, VIEW_INDEX0 + i))
+                    views["floor"].append(anchors[sc.name].floor(g, VIEW_INDEX0 + i))
+            bar.update(len(chunk))
+    bar.close()
+    # a method with several translations per view (styles) is scored on all of them; the first is
+    # the one shown beside the other rows
+    views["model"] = next(iter(variants.values()))
+    scored = {**views, "model": [f for frames in variants.values() for f in frames]}
+    return ViewSet(views, scored, [v or "default" for v in variants], liver)
+
+
+# --- realism -------------------------------------------------------------------------------------
+
+
+def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, status: dict, s,
+                  rows_shown: Sequence[str], say: Say = lambda m: None) -> dict:
+    """FID/KID (with the user's Inception weights, else ``None`` and the reason), the proxy and
+    the detail ratio of every row. Returns ``{"rows": {row: {...}}, "fid", "fid_info", "proxy",
+    "reason"}``."""
+    realism: dict[str, dict] = {r: {} for r in rows_shown}
+    gen = vs.scored["model"]
+    real_t = to_nchw(real_imgs)
+    reason = None
+    fid = {"fid": None, "kid_mean": None, "kid_std": None}
+    fid_info = {"n_real": len(real_imgs), "n_gen": len(gen), "kid_subset_size": None, "kid_subsets": s.kid_subsets,
+                "weights": status.get("path"), "variants": list(vs.variants)}
+    if inception is None:
+        reason = status["reason"]
+    elif len(gen) < 2 or len(real_imgs) < 2:
+        reason = f"FID/KID need at least 2 images per set (got {len(real_imgs)} real, {len(gen)} generated)"
+    else:
+        say(f"FID/KID: Inception features of {len(real_imgs)} real and {len(gen)} images per row")
+        for row in rows_shown:
+            with warnings.catch_warnings():  # torchmetrics warns that KID keeps its features: known, bounded here
+                warnings.filterwarnings("ignore", message=".*will save all extracted features in buffer.*")
+                r = fid_kid(to_nchw(vs.scored[row]), real_t, inception, kid_subset_size=s.kid_subset_size,
+                            kid_subsets=s.kid_subsets, batch_size=max(s.batch, 16), seed=s.seed)
+            vals = {"fid": r["fid"], "kid_mean": r["kid_mean"], "kid_std": r["kid_std"]}
+            vals = {k: (v if np.isfinite(v) else None) for k, v in vals.items()}
+            realism[row].update(fid=vals["fid"], kid=vals["kid_mean"])
+            if row == "model":
+                fid = vals
+                fid_info.update(kid_subset_size=r["kid_subset_size"])
+                bad = [k for k, v in vals.items() if v is None]
+                if bad:
+                    reason = f"{', '.join(bad)} not finite (too few images for a {r['num_features']}-d covariance?)"
+    proxy = None
+    for row in rows_shown:
+        p = proxy_colour_texture_distance(to_nchw(vs.scored[row]), real_t)
+        if row == "model":
+            proxy = p
+        realism[row]["proxy"] = p["proxy_colour_texture_distance"]
+        # detail: the row's mean grey gradient as a share of the real images' (1 = as detailed)
+        g_real = p["proxy_grad_mean_real"]
+        realism[row]["detail"] = p["proxy_grad_mean_gen"] / g_real if g_real > 0 else None
+    return {"rows": realism, "fid": fid, "fid_info": fid_info, "proxy": proxy, "reason": reason}
+
+
+# --- segmentation --------------------------------------------------------------------------------
+
+
+def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[str], progress: bool = True,
+                       say: Say = lambda m: None) -> dict:
+    """Dice of every row (:mod:`sim2real.inference.dice`) against the views' simulated liver.
+    Returns ``{"dice": {...}, "info": {...}, "rows": {row: value}, "reason"}``."""
+    from sim2real.inference.dice import dice_of, segmenters  # torch-heavy training code, only with labels
+
+    labelled = real_set.labelled
+    dice = {"dice": None, "dice_a_ref": None, "dice_real_train": None, "dice_real_held_out": None, "dice_ceiling": None}
+    info = {"n_train": len(labelled), "n_eval": len(vs.scored["model"]), "iterations": s.seg_iterations,
+            "height": s.seg_height, "width": s.seg_width, "rows": {}}
+    values: dict[str, float | None] = {}
+    if not labelled:
+        reason = (f"no labelled real images: expected {real_set.label_root}/NAME.png (uint8 class index, "
+                  f"0 = liver, 255 = background) for the images {real_set.root}/NAME.*")
+        return {"dice": dice, "info": info, "rows": values, "reason": reason}
+    segs, seg_info = segmenters(labelled, s, device, progress=progress, say=say)
+    info.update(seg_info)
+    gt = np.stack([fit_image(m.astype(np.uint8), s.seg_height, s.seg_width, nearest=True).astype(bool) for m in vs.liver])
+    for row in rows_shown:
+        frames = vs.scored[row]
+        info["rows"][row] = d = dice_of(segs, frames, np.concatenate([gt] * (len(frames) // len(gt))), s)
+        values[row] = d["value"]
+    dice.update(dice=info["rows"]["model"]["value"], dice_a_ref=info["rows"]["a_ref"]["value"],
+                dice_real_held_out=seg_info["held_out_dice"]["value"],
+                dice_real_train=float(np.mean([m["train_dice"] for m in seg_info["per_seed"]])),
+                dice_ceiling=info["rows"].get("ceiling", {}).get("value"))
+    reason = info["rows"]["model"]["reason"] if dice["dice"] is None else None
+    return {"dice": dice, "info": info, "rows": values, "reason": reason}
+
+
+# --- consistency ---------------------------------------------------------------------------------
+
+
+def consistency_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, s, rows_shown: Sequence[str],
+                      out: Path, size: tuple[int, int, float], trajs=None, trajectory_files=None,
+                      progress: bool = True) -> dict:
+    """Each scene's trajectory (given, or generated with ``s.frames`` frames) translated and
+    scored for every row; the videos are written under ``out/videos``. Returns
+    ``{"per_scene", "samples" (scene -> row -> frames), "inputs" (per scene), "orb_settings", "ks"}``."""
+    H, W, fov = size
+    per_scene: dict[str, dict] = {}
+    seq_samples: dict[str, dict] = {}
+    inputs_scenes = []
+    orb = orb_settings_for(W, s.orb_features)
+    ks = sorted(set(range(1, s.orb_max_k + 1)) | set(PAPER_KS))
+    for k, (sc, d) in enumerate(scenes):
+        if trajs is not None:
+            traj = trajs[k]
+        else:
+            traj = make_trajectory(casters[sc.name], s.frames, H, W, fov, seed=s.seed + k, **(s.trajectory or {}))
+        res, frames = sequence_metrics(model, sc.name, d, traj.cameras, casters[sc.name], anchors.get(sc.name), s, ks,
+                                       orb, rows_shown, progress)
+        res["trajectory"] = {"file": str(Path(trajectory_files[k]).resolve()) if trajectory_files is not None else None,
+                             "motion_budget": (traj.motion or {}).get("budget")}
+        inputs_scenes.append({"name": sc.name, "scene_dir": str(d), "trajectory": res["trajectory"]["file"],
+                              "frames": len(traj.cameras)})
+        per_scene[sc.name] = res
+        seq_samples[sc.name] = frames
+        for row in rows_shown:
+            if row != "a_ref":
+                write_video(frames[row], out / "videos" / (f"{safe_name(sc.name)}.mp4" if row == "model"
+                                                           else f"{safe_name(sc.name)}_{row}.mp4"), fps=traj.fps)
+        if "model_backward" in frames:  # the extended sequence 1..T, T..1 as the method translated it
+            write_video(frames["model"] + frames["model_backward"],
+                        out / "videos" / f"{safe_name(sc.name)}_revisit.mp4", fps=traj.fps)
+    return {"per_scene": per_scene, "samples": seq_samples, "inputs": inputs_scenes, "orb_settings": orb, "ks": ks}
+
+
+def sequence_metrics(model, scene: str, scene_dir: Path, cameras, caster, anchors, s, ks, orb, rows_shown,
+                     progress: bool):
+    """Translate one trajectory, render its ceiling, floor and a_ref, and score every row."""
+    T = len(cameras)
+    frames: dict[str, list] = {r: [] for r in rows_shown}
+    points, masks, flows, valids = [], [], [], []
+    meter = MotionMeter()
+    prev = None
+    bar = tqdm(total=T, desc=f"sequence {scene}", unit="frame", disable=not progress)
+    seq = model.sequence(scene, s.batch)
+    for chunk in chunked(iter_gbuffers(scene_dir, cameras, s.workers, s.batch, caster=caster), s.batch):
+        for g, f in zip(chunk, seq.translate(chunk)):
+            t = len(points)
+            if prev is not None:
+                fl, vis = gt_flow(prev, g)
+                flows.append(fl)
+                valids.append(vis)
+            meter.add(g)
+            frames["model"].append(f)
+            frames["a_ref"].append(to_uint8(reference_rendering(g)))
+            if anchors is not None:
+                frames["ceiling"].append(anchors.ceiling(g, t))
+                frames["floor"].append(anchors.floor(g, t))
+            points.append(np.asarray(g.points, dtype=np.float32))
+            masks.append(g.mask)
+            prev = g
+        bar.update(len(chunk))
+    bar.close()
+    backward = None
+    if not model.time_independent:  # the revisit half T..1, continuing the sequence's state
+        backward = []
+        for chunk in chunked(iter_gbuffers(scene_dir, cameras[::-1], s.workers, s.batch, caster=caster), s.batch):
+            backward.extend(seq.translate(chunk))
+        frames["model_backward"] = backward
+    rows, ceiling_est = {}, None
+    for row in ("ceiling",) + tuple(r for r in rows_shown if r != "ceiling"):
+        if row in frames:
+            rows[row], est = sequence_row(frames[row], points, masks, flows, valids, ks, s.threshold_mm, orb, ceiling_est,
+                                          revisit=row == "model",  # the anchors reuse their forward pairs
+                                          backward=backward if row == "model" else None)
+            if row == "ceiling":  # against its own flow the ceiling scores 0 by definition
+                ceiling_est = est
+                r = rows["ceiling"]
+                for key in ("of_error", "of_epe"):
+                    r["per_pair"][f"{key}_vs_ceiling"] = [None if e is None else 0.0 for e in r["per_pair"][key]]
+                    r[f"{key}_vs_ceiling"] = None if r[key] is None else 0.0
+    return {"frames": T, "motion": meter.summary(), "rows": rows}, frames
+
+
+# --- report --------------------------------------------------------------------------------------
+
+
+def _orb_reason(orb: dict[str, dict]) -> str | None:
+    bad = []
+    for k, e in orb.items():
+        if e["pairs"] == 0:
+            bad.append(f"ORB-{k}: no frame pair {k} apart (trajectory too short)")
+        elif e["accuracy"] is None:
+            bad.append(f"ORB-{k}: no ORB match in {e['pairs']} pairs (frames too smooth)")
+    return "; ".join(bad) if bad else None
+
+
+def assemble_metrics(*, header: dict, s, rows_shown: Sequence[str], realism: dict, seg: dict, cons: dict,
+                     time_independent: bool, real_is_stand_in: bool, anchor_options: dict, seconds: dict) -> dict:
+    """metrics.json (docs/formats.md, "Evaluation") from the stages' results; ``header`` holds
+    ``format``, ``run`` and ``inputs`` (whose ``scenes`` the consistency stage fills)."""
+    realism_rows = {r: {**realism["rows"][r]} for r in rows_shown}
+    for r, v in seg["rows"].items():
+        realism_rows[r]["dice"] = v
+    pooled = {row: pool_rows([sc["rows"][row] for sc in cons["per_scene"].values()], cons["ks"]) for row in rows_shown}
+    m_row = pooled["model"]
+    orb = m_row["orb_curve"]
+    of_error = m_row["of_error"]
+    revisit = {"of_error": m_row["revisit"]["of_error"], "orb": m_row["revisit"]["orb"],
+               "backward_frames": "reused: the method is time-independent" if time_independent
+               else "translated by the method, continuing its state after frame T"}
+    reasons: dict[str, str | None] = {"fid": realism["reason"], "dice": seg["reason"], "of_error": None, "orb": None,
+                                      "revisit": None}
+    if of_error is None:
+        reasons["of_error"] = "no frame pair with visible ground-truth flow (trajectories of 1 frame, or nothing visible)"
+    paper_orb = {str(k): orb[str(k)] for k in PAPER_KS}
+    reasons["orb"] = _orb_reason(paper_orb)
+    rv = []
+    if revisit["of_error"] is None:
+        rv.append("OF: no pair with visible ground-truth flow")
+    if _orb_reason(revisit["orb"]):
+        rv.append(_orb_reason(revisit["orb"]))
+    reasons["revisit"] = "; ".join(rv) if rv else None
+    table = {row: scalars(pooled[row], realism_rows[row]) for row in rows_shown}
+    pos = positions(table) if s.anchors else {}
+    warnings_ = []
+    if s.anchors and of_error is not None and pooled["ceiling"]["of_error"] is not None \
+            and of_error < pooled["ceiling"]["of_error"]:
+        warnings_.append(f"the model's OF error ({of_error:.3g} px) is below the ceiling's "
+                         f"({pooled['ceiling']['of_error']:.3g} px): Farnebäck returns near-zero flow on smooth frames, "
+                         "so this OF error rewards blur here; see of_error_vs_ceiling "
+                         f"({m_row['of_error_vs_ceiling']:.3g} px, ceiling 0)")
+    if s.anchors and not real_is_stand_in:
+        warnings_.append("the real folder is not the stand-in real domain (no sim2real-realdomain manifest): the ceiling "
+                         "and the floor describe the stand-in, not your domain")
+    inputs = {**header["inputs"], "scenes": cons["inputs"]}
+    metrics = {
+        "format": header["format"],
+        "run": header["run"],
+        "settings": {**dataclasses.asdict(s), "fid_weights": realism["fid_info"]["weights"],
+                     "orb": cons["orb_settings"].to_json()},
+        "inputs": inputs,
+        **realism["fid"],
+        "fid_kid": realism["fid_info"],
+        "proxy": realism["proxy"],
+        **seg["dice"],
+        "dice_info": seg["info"],
+        "of_error": of_error,
+        "of_epe": m_row["of_epe"],
+        "orb": paper_orb,
+        "orb_curve": orb,
+        "revisit": revisit,
+        "rows": table,
+        "row_curves": {row: pooled[row]["orb_curve"] for row in rows_shown},
+        "position": pos,
+        "anchors": {"ceiling": "the stand-in real domain rendered on the evaluated views with one appearance",
+                    "floor": f"the stand-in with a new appearance every frame (a pool of {s.orb_max_k + 1}, frame t "
+                             f"takes t mod {s.orb_max_k + 1})", "a_ref": "the untranslated reference rendering",
+                    "enabled": s.anchors, "render_options": anchor_options},
+        "warnings": warnings_,
+        "per_scene": cons["per_scene"],
+        "reasons": reasons,
+        "seconds": {k: round(v, 3) for k, v in seconds.items()},
+    }
+    return json_safe(metrics)
+
+
+def report_stage(metrics: dict, out: Path, vs: ViewSet, real_imgs, seq_samples: dict, s) -> dict:
+    """Write the samples, report.md/html and, last, metrics.json (its presence marks a complete
+    evaluation). Returns ``metrics``."""
+    samples = write_samples(out, vs.shown, real_imgs, seq_samples, s)
+    write_report(metrics, out, samples)
+    atomic_write_json(out / "metrics.json", metrics)
+    return metrics
+
+
+def safe_name(name: str) -> str:
+    return re.sub(r"[^0-9A-Za-z_.-]", "_", name)
+
+
+def _sample_indices(T: int) -> list[int]:
+    return sorted({0, T // 3, (2 * T) // 3, T - 1})
+
+
+def _grid(rows: list[list[np.ndarray]], gap: int = 2) -> np.ndarray:
+    """Tile uint8 RGB images (rows of columns) with white gaps, each fitted to the first one's size."""
+    from sim2real.grid import tile
+
+    h, w = rows[0][0].shape[:2]
+    return tile([[im if im.shape[:2] == (h, w) else fit_image(im, h, w) for im in row] for row in rows], gap)
+
+
+def write_samples(out: Path, views: dict, real_imgs, seq_samples: dict, s) -> dict:
+    """PNG sample grids under ``out/samples``; returns {title: relative path}."""
+    samples: dict[str, str] = {}
+    order = [r for r in ("a_ref", "model", "ceiling", "floor") if r in views]
+    gen = views["model"]
+    n = min(s.samples, len(gen))
+    if n:
+        rng = np.random.default_rng(s.seed)
+        idx = sorted(rng.choice(len(gen), n, replace=False))
+        atomic_write_image(out / "samples" / "views.png", _grid([[views[r][i] for r in order] for i in idx]))
+        samples[f"Random views, one per row; columns: {', '.join(order)}"] = "samples/views.png"
+    if real_imgs:
+        atomic_write_image(out / "samples" / "real.png", _grid([real_imgs[: min(4, len(real_imgs))]]))
+        samples["Real images (resized and centre-cropped as for FID)"] = "samples/real.png"
+    for name, frames in seq_samples.items():
+        idx = _sample_indices(len(frames["model"]))
+        rel = f"samples/trajectory_{safe_name(name)}.png"
+        atomic_write_image(out / rel, _grid([[frames[r][i] for i in idx] for r in order]))
+        samples[f"Trajectory of '{name}', frames {', '.join(str(i) for i in idx)}; rows: {', '.join(order)}"] = rel
+    return samples
+
+
+def json_safe(x):
+    """numpy scalars -> Python numbers, NaN/inf -> None (metrics.json is strict JSON)."""
+    if isinstance(x, dict):
+        return {str(k): json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [json_safe(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return v if np.isfinite(v) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+@contextlib.contextmanager
+def timed(seconds: dict, name: str):
+    """Add the wall time of the ``with`` block to ``seconds[name]``."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - t0
