@@ -14,16 +14,14 @@ from __future__ import annotations
 import torch
 from pytorch_msssim import ms_ssim
 
+from sim2real.colour import grey as colour_grey
+
 MS_SSIM_WEIGHTS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)
-GREY = (0.299, 0.587, 0.114)
 
 
 def grey(x: torch.Tensor) -> torch.Tensor:
-    """(B, 3, H, W) in [-1, 1] -> (B, 1, H, W) grey in [0, 1]."""
-    if x.dim() != 4 or x.shape[1] != 3:
-        raise ValueError(f"grey: expected (B, 3, H, W), got {tuple(x.shape)}")
-    rgb = (x + 1) * 0.5
-    return GREY[0] * rgb[:, 0:1] + GREY[1] * rgb[:, 1:2] + GREY[2] * rgb[:, 2:3]
+    """(B, 3, H, W) in [-1, 1] -> (B, 1, H, W) grey in [0, 1] (:func:`sim2real.colour.grey`)."""
+    return colour_grey((x + 1) * 0.5)
 
 
 def check_ssim_size(height: int, width: int, win: int) -> None:

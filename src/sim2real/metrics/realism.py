@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from sim2real.colour import grey
 from sim2real.metrics.inception import FID_WEIGHTS_ENV, FID_WEIGHTS_FILENAME, resolve_fid_weights
 
 ImageSource = Tensor | Iterable[Tensor]
@@ -181,13 +182,9 @@ def fid_unavailable(reason: str) -> dict:
 
 
 # --------------------------------------------------------------------------- proxy (not FID)
-def _grey(x: Tensor) -> Tensor:
-    return 0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2]
-
-
 def _gradient_magnitude(x: Tensor) -> Tensor:
     """Central-difference gradient magnitude of the grey image, (n, H-2, W-2)."""
-    g = _grey(x)
+    g = grey(x)[:, 0]
     gx = (g[:, 1:-1, 2:] - g[:, 1:-1, :-2]) / 2.0
     gy = (g[:, 2:, 1:-1] - g[:, :-2, 1:-1]) / 2.0
     return torch.sqrt(gx * gx + gy * gy)

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from sim2real.colour import GREY_WEIGHTS
 from sim2real.render.gbuffer import GBuffer
 from sim2real.realdomain.appearance import linear_to_srgb
 from sim2real.realdomain.materials import SceneMaterial
@@ -136,7 +137,7 @@ def render_frame(g: GBuffer, material: SceneMaterial, options: RenderOptions | N
     x = x * (1.0 + x / (white * white)) / (1.0 + x)
     img = linear_to_srgb(x)
     # The camera's colour processing: a mild saturation boost, as endoscope video has.
-    grey = img @ np.array([0.299, 0.587, 0.114], np.float32)
+    grey = img @ np.array(GREY_WEIGHTS, np.float32)
     img = grey[..., None] + opt.saturation * (img - grey[..., None])
     if opt.blur_px > 0:
         img = cv2.GaussianBlur(img, (0, 0), opt.blur_px)
