@@ -95,6 +95,10 @@ class EvalSettings:
     """An ORB match is correct when its two 3D points are closer than this (paper: 1 mm)."""
     kid_subset_size: int = 1000
     kid_subsets: int = 100
+    c2st_steps: int = 150
+    """Training steps of the classifier two-sample test (0: not computed)."""
+    realism_kid: bool = True
+    """Compute the KID in a fixed random network's features."""
     workers: int | None = None
     """Ray-casting processes (None: automatic)."""
     samples: int = 4
@@ -163,7 +167,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     with timed(seconds, "views"):
         vs = views_stage(model, scenes, casters, anchors, real_imgs, s, rows_shown, size, progress)
     with timed(seconds, "fid_kid"):
-        realism = realism_stage(vs, real_imgs, inception, status, s, rows_shown, say)
+        realism = realism_stage(vs, real_imgs, inception, status, s, rows_shown, say, model.device)
     del inception
     with timed(seconds, "dice"):
         seg = segmentation_stage(real_set, vs, s, model.device, rows_shown, progress, say)
@@ -194,8 +198,8 @@ def check_settings(s: EvalSettings) -> None:
             raise UserError(f"evaluation setting {name} must be positive, got {getattr(s, name)}")
     if s.frames < 2:
         raise UserError(f"a trajectory needs at least 2 frames, got {s.frames}")
-    if s.seg_iterations < 0:
-        raise UserError(f"seg_iterations must be >= 0, got {s.seg_iterations}")
+    if s.seg_iterations < 0 or s.c2st_steps < 0:
+        raise UserError(f"seg_iterations and c2st_steps must be >= 0, got {s.seg_iterations}, {s.c2st_steps}")
     if not s.threshold_mm > 0:
         raise UserError(f"threshold_mm must be positive, got {s.threshold_mm}")
     if not 0 < s.seg_holdout < 1:

@@ -151,6 +151,7 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
 
     for w in m.get("warnings", []):
         b.append(("p", f"**Note:** {w}."))
+    b += realism_beside_blocks(m)
     if m.get("position"):
         b += _calibration_blocks(m)
     b.append(("h", 2, "Realism"))
@@ -219,6 +220,41 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
     return b
 
 
+_BESIDE = [("orb_1_correct", "ORB-1 correct / pair", "higher"), ("orb_10_correct", "ORB-10 correct / pair", "higher"),
+           ("of_error", "OF error (px)", "lower")]
+_BESIDE_REALISM = [("c2st", "C2ST accuracy (0.5 = as real)"), ("random_kid", "KID, random-net features (0 = as real)"),
+                   ("dice", "Dice"), ("fid", "FID"), ("kid", "KID (Inception)")]
+_ROW_LABELS = {"model": "model", "ceiling": "ceiling (a perfect video)", "floor": "floor (a flickering video)",
+               "a_ref": "a_ref (untranslated)", "real_held_out": "real images (held out)"}
+
+
+def realism_beside_blocks(m: dict) -> list[tuple]:
+    """Every row's consistency figures beside its realism measures: a high ORB count with poor
+    realism reads as what it is."""
+    rows_ = m["rows"]
+    real = m.get("realism", {})
+    shown = [(k, label) for k, label in _BESIDE_REALISM
+             if k in real and any(v is not None for v in real[k]["rows"].values())]
+    header = ["row"] + [f"{label} ({better})" for _, label, better in _BESIDE] + \
+             [f"{label} ({real[k]['better']})" for k, label in shown]
+    table = []
+    for r in list(rows_) + ["real_held_out"]:
+        cons = [_num(rows_[r].get(k), 3) if r in rows_ else "" for k, _, _ in _BESIDE]
+        table.append([_ROW_LABELS.get(r, r)] + cons + [_num(real[k]["rows"].get(r), 3) for k, _ in shown])
+    b: list[tuple] = [("h", 2, "Consistency beside realism"),
+                      ("p", "Consistency counts reward any pattern that stays on the surface, realistic or not; the "
+                            "realism measures say whether the frames look like the real images. Read them together. "
+                            "The realism measures compare each row with half of the real images; the other half "
+                            "(real images, held out) shows the value of real frames themselves. C2ST: held-out "
+                            "accuracy of a small CNN trained to tell the row's frames from real ones (0.5: it cannot); "
+                            "KID in the features of a fixed random network (0: the same distribution)."),
+                      ("table", header, table)]
+    notes = [f"{k}: {real[k]['reason']}" for k in ("c2st", "random_kid") if k in real and real[k].get("reason")]
+    if notes:
+        b.append(("p", "Not computed: " + " | ".join(notes)))
+    return b
+
+
 _CAL_METRICS = [
     ("orb_1_accuracy", "ORB-1 accuracy", True), ("orb_1_correct", "ORB-1 correct / pair", False),
     ("orb_5_accuracy", "ORB-5 accuracy", True), ("orb_5_correct", "ORB-5 correct / pair", False),
@@ -231,6 +267,7 @@ _CAL_METRICS = [
     ("dice", "Dice (mean over segmenter seeds)", False), ("proxy", "proxy colour+texture distance (not FID)", False),
     ("detail", "detail: mean grey gradient / the real images'", True),
     ("fid", "FID", False), ("kid", "KID", False),
+    ("c2st", "C2ST accuracy (0.5 = as real)", True), ("random_kid", "KID in random-network features", False),
 ]
 
 
@@ -240,24 +277,47 @@ def _cal_value(v, pct: bool) -> str:
     return f"{100 * v:.1f}%" if pct else f"{v:.4g}"
 
 
+def _pos_cell(p: dict, key: str) -> str:
+    v, why = p.get(key), p.get("reason" if key == "position" else "reason_a_ref") or ""
+    if v is not None:
+        return _num(v, 3)
+    if why.startswith("above"):
+        return "above the stand-in's level"
+    if "no ceiling exists" in why:
+        return "no ceiling"
+    if why.startswith("uncalibrated"):
+        return "uncalibrated"
+    return "n/a"
+
+
 def _calibration_blocks(m: dict) -> list[tuple]:
     rows_ = m["rows"]
     pos = m["position"]
+    cal = m.get("calibration", {})
     b: list[tuple] = [("h", 2, "Between floor and ceiling")]
+    if cal.get("status") == "no ceiling":
+        b.append(("p", "**No ceiling exists for this real domain.** The ceiling and the floor below are the stand-in "
+                       "domain rendered on the same views, not your footage: positions are withheld. Read the model "
+                       "against the floor (flicker) and a_ref (the untranslated input) for consistency, and against "
+                       "the realism measures above, which compare with your own images."))
+    elif cal.get("status") == "uncalibrated":
+        b.append(("p", f"**Uncalibrated path:** on this path the ceiling does not clear the floor and a_ref by "
+                       f"{cal['margin']:.0%} on {', '.join(cal['uncalibrated'])}; those positions are withheld."))
     b.append(("p", "Every metric is also computed on three reference videos of the very same views and path: the "
                    "**ceiling** (the stand-in real domain rendered with one appearance: consistent and detailed by "
                    "construction, the best these metrics can say of a video here), the **floor** (the same with a new "
                    "appearance every frame: it flickers) and **a_ref**, the untranslated input. Position = (model − "
                    "floor) / (ceiling − floor): 0 is the floor, 1 the ceiling; n/a where the ceiling and the floor differ "
                    "by less than 5 %, i.e. the metric cannot tell them apart (the per-frame realism metrics do not see "
-                   "flicker: read their position from a_ref)."))
+                   "flicker: read their position from a_ref). A model beyond the ceiling is \"above the stand-in's "
+                   "level\", not a fraction: the ceiling is what the stand-in scores, not an upper bound."))
     table = []
     for key, label, pct in _CAL_METRICS:
         if key not in rows_["model"] or all(rows_[r].get(key) is None for r in rows_):
             continue
         p = pos.get(key, {})
         table.append([label] + [_cal_value(rows_[r].get(key), pct) for r in ("model", "ceiling", "floor", "a_ref")]
-                     + [_num(p.get("position"), 3), _num(p.get("position_a_ref"), 3)])
+                     + [_pos_cell(p, "position"), _pos_cell(p, "position_a_ref")])
     b.append(("table", ["metric", "model", "ceiling", "floor", "a_ref", "position (floor 0, ceiling 1)",
                         "position (a_ref 0, ceiling 1)"], table))
     mot = []

@@ -20,6 +20,28 @@ from sim2real.metrics.consistency import PAPER_ORB_KS as PAPER_KS
 
 ROWS = ("model", "ceiling", "floor", "a_ref")
 MIN_GAP = 0.05
+CALIBRATION_MARGIN = 0.25
+"""A temporal metric (ORB-k, OF, revisit) is calibrated on a path when the ceiling beats the
+floor and a_ref by at least this share of the ceiling's value; the per-frame measures keep the
+:data:`MIN_GAP` rule of :func:`position`."""
+ABOVE = "above the stand-in's level"
+
+HIGHER = "higher"
+LOWER = "lower"
+
+
+def direction(metric: str) -> str | None:
+    """Which way a metric of :func:`scalars` is better, or None (``detail``: closest to 1)."""
+    if metric in ("dice",) or metric.endswith("_accuracy") or metric.endswith("_correct"):
+        return HIGHER
+    if metric.startswith("of_") or metric.startswith("revisit_of") or metric in ("proxy", "fid", "kid", "c2st",
+                                                                                  "random_kid"):
+        return LOWER
+    return None
+
+
+def temporal(metric: str) -> bool:
+    return metric.startswith(("orb_", "of_", "revisit_"))
 
 
 def sequence_row(frames: Sequence[np.ndarray], points, masks, flows, valids, ks, threshold_mm: float, orb,
@@ -118,11 +140,59 @@ def position(model, ceiling, low, low_name: str = "floor", min_gap: float = MIN_
     return float((model - low) / gap), None
 
 
-def positions(rows: dict[str, dict]) -> dict:
-    """{metric: {"position", "position_a_ref", "reason"}} for every metric of the model row."""
+def positions(rows: dict[str, dict], calibrated: dict | None = None) -> dict:
+    """{metric: {"position", "position_a_ref", "reason"}} for every metric of the model row.
+
+    A position above 1 (the model beyond the ceiling) is withheld with the reason :data:`ABOVE`:
+    the ceiling is the stand-in's level, not an upper bound of what a video can score. With
+    ``calibrated`` (:func:`calibration`'s ``metrics``), an uncalibrated metric's positions are
+    withheld too."""
     out = {}
     for name, v in rows["model"].items():
         p, why = position(v, rows["ceiling"].get(name), rows["floor"].get(name), "floor")
         pa, why_a = position(v, rows["ceiling"].get(name), rows["a_ref"].get(name), "a_ref")
+        if calibrated is not None and name in calibrated and not calibrated[name]["calibrated"]:
+            why = why_a = f"uncalibrated: {calibrated[name]['reason']}"
+            p = pa = None
+        if p is not None and p > 1 + 1e-9:
+            p, why = None, ABOVE
+        if pa is not None and pa > 1 + 1e-9:
+            pa, why_a = None, ABOVE
         out[name] = {"position": p, "position_a_ref": pa, "reason": why, "reason_a_ref": why_a}
     return out
+
+
+def calibrated_metric(metric: str, rows: dict[str, dict], margin: float = CALIBRATION_MARGIN) -> tuple[bool, str | None]:
+    """(True, None) when the ceiling clears the rows it must beat by ``margin`` of its value on
+    this metric (module docstring of :data:`CALIBRATION_MARGIN`), else (False, why)."""
+    d = direction(metric)
+    c = rows["ceiling"].get(metric)
+    if d is None or not temporal(metric):  # per-frame measures: the 5 % rule of position() only
+        return True, None
+    if c is None:
+        return False, "the ceiling has no value"
+    for low in ("floor", "a_ref"):
+        v = rows.get(low, {}).get(metric)
+        if v is None:
+            continue
+        gap = (c - v) if d == HIGHER else (v - c)
+        if gap < margin * abs(c):
+            return False, (f"the ceiling ({c:.4g}) does not clear {low} ({v:.4g}) by {margin:.0%} of its value")
+    return True, None
+
+
+def calibration(rows: dict[str, dict], stand_in: bool, margin: float = CALIBRATION_MARGIN) -> dict:
+    """Whether this path's ceiling can calibrate each metric.
+
+    ``status``: "no ceiling" when the real images are not the stand-in domain (the ceiling and
+    floor rows then describe the stand-in, and only a_ref, the floor and the realism measures
+    speak for the user's domain); else "uncalibrated" when any ORB-1/5/10 count or the OF error
+    is uncalibrated (:func:`calibrated_metric`), else "calibrated". ``metrics``: per metric."""
+    metrics = {}
+    for name in rows["model"]:
+        ok, why = calibrated_metric(name, rows, margin) if stand_in else (False, "no ceiling exists for this real domain")
+        metrics[name] = {"calibrated": ok, "reason": why}
+    key = [f"orb_{k}_correct" for k in PAPER_KS] + ["of_error"]
+    bad = [k for k in key if k in metrics and not metrics[k]["calibrated"]]
+    status = "no ceiling" if not stand_in else ("uncalibrated" if bad else "calibrated")
+    return {"status": status, "margin": margin, "uncalibrated": bad if stand_in else [], "metrics": metrics}

@@ -25,10 +25,11 @@ from sim2real.fileio import atomic_write_image, atomic_write_json
 from sim2real.inference.frames import chunked, iter_gbuffers
 from sim2real.inference.realimages import fit_image, to_nchw
 from sim2real.inference.report import write_report
-from sim2real.inference.rows import PAPER_KS, pool_rows, positions, scalars, sequence_row
+from sim2real.inference.rows import PAPER_KS, calibration, pool_rows, positions, scalars, sequence_row
 from sim2real.inference.video import write_video
 from sim2real.metrics.consistency import orb_settings_for
 from sim2real.metrics.realism import fid_kid, proxy_colour_texture_distance
+from sim2real.metrics.twosample import RANDOM_NET_SEED, RandomFeatures, c2st, random_kid
 from sim2real.render.motion import MotionMeter
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.render.warp import flow as gt_flow
@@ -102,10 +103,10 @@ def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, re
 
 
 def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, status: dict, s,
-                  rows_shown: Sequence[str], say: Say = lambda m: None) -> dict:
-    """FID/KID (with the user's Inception weights, else ``None`` and the reason), the proxy and
-    the detail ratio of every row. Returns ``{"rows": {row: {...}}, "fid", "fid_info", "proxy",
-    "reason"}``."""
+                  rows_shown: Sequence[str], say: Say = lambda m: None, device="cpu") -> dict:
+    """FID/KID (with the user's Inception weights, else ``None`` and the reason), the proxy, the
+    detail ratio and the weight-free measures (:func:`weight_free_realism`) of every row. Returns
+    ``{"rows": {row: {...}}, "fid", "fid_info", "proxy", "reason", "measures"}``."""
     realism: dict[str, dict] = {r: {} for r in rows_shown}
     gen = vs.scored["model"]
     real_t = to_nchw(real_imgs)
@@ -142,7 +143,53 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
         # detail: the row's mean grey gradient as a share of the real images' (1 = as detailed)
         g_real = p["proxy_grad_mean_real"]
         realism[row]["detail"] = p["proxy_grad_mean_gen"] / g_real if g_real > 0 else None
-    return {"rows": realism, "fid": fid, "fid_info": fid_info, "proxy": proxy, "reason": reason}
+    measures = weight_free_realism(vs.scored, real_imgs, s, rows_shown, device, say)
+    for name, m in measures.items():
+        for row in rows_shown:
+            realism[row][name] = m["rows"].get(row)
+    return {"rows": realism, "fid": fid, "fid_info": fid_info, "proxy": proxy, "reason": reason, "measures": measures}
+
+
+def weight_free_realism(scored: dict[str, list], real_imgs: Sequence[np.ndarray], s, rows_shown: Sequence[str],
+                        device="cpu", say: Say = lambda m: None) -> dict:
+    """The realism measures that need no downloaded weights (:mod:`sim2real.metrics.twosample`),
+    ``{name: {"better", "null", "rows": {row: value}, "details", "seconds", "reason"}}``.
+
+    The real images are split in halves (seeded): every row is compared with the reference half,
+    and the held-out half is the ``real_held_out`` row, the value of real frames themselves (the
+    null). ``c2st`` is the classifier test's held-out accuracy (0.5: indistinguishable from real),
+    ``random_kid`` the unbiased KID in a fixed random network's features (0: as real).
+    """
+    out: dict[str, dict] = {}
+    perm = np.random.default_rng((s.seed, 2)).permutation(len(real_imgs))
+    ref = [real_imgs[i] for i in perm[: len(perm) // 2]]
+    held = [real_imgs[i] for i in perm[len(perm) // 2:]]
+    sets = {**{r: scored[r] for r in rows_shown}, "real_held_out": held}
+    small = min(len(ref), min(len(v) for v in sets.values()))
+    specs = [("random_kid", 0.0, s.realism_kid, 2), ("c2st", 0.5, s.c2st_steps > 0, 4)]
+    for name, null, enabled, need in specs:
+        entry = {"better": "lower", "null": null, "rows": {r: None for r in sets}, "details": {}, "seconds": 0.0,
+                 "reason": None}
+        out[name] = entry
+        if not enabled:
+            entry["reason"] = "switched off in the settings"
+            continue
+        if small < need:
+            entry["reason"] = (f"needs at least {need} frames per set and {need} real images in each half "
+                               f"(got {small})")
+            continue
+        say(f"realism: {name} of {len(sets)} rows against {len(ref)} real images")
+        t0 = time.perf_counter()
+        net = RandomFeatures(RANDOM_NET_SEED).to(device) if name == "random_kid" else None
+        for row, frames in sets.items():
+            if name == "random_kid":
+                entry["rows"][row] = random_kid(frames, ref, net=net, device=device)
+            else:
+                r = c2st(frames, ref, seed=s.seed, steps=s.c2st_steps, device=device)
+                entry["rows"][row] = r["accuracy"]
+                entry["details"][row] = r
+        entry["seconds"] = time.perf_counter() - t0
+    return out
 
 
 # --- segmentation --------------------------------------------------------------------------------
@@ -305,7 +352,8 @@ def assemble_metrics(*, header: dict, s, rows_shown: Sequence[str], realism: dic
         rv.append(_orb_reason(revisit["orb"]))
     reasons["revisit"] = "; ".join(rv) if rv else None
     table = {row: scalars(pooled[row], realism_rows[row]) for row in rows_shown}
-    pos = positions(table) if s.anchors else {}
+    calib = calibration(table, real_is_stand_in) if s.anchors else {"status": "no anchors", "metrics": {}}
+    pos = positions(table, calib["metrics"]) if s.anchors else {}
     warnings_ = []
     if s.anchors and of_error is not None and pooled["ceiling"]["of_error"] is not None \
             and of_error < pooled["ceiling"]["of_error"]:
@@ -317,6 +365,7 @@ def assemble_metrics(*, header: dict, s, rows_shown: Sequence[str], realism: dic
         warnings_.append("the real folder is not the stand-in real domain (no sim2real-realdomain manifest): the ceiling "
                          "and the floor describe the stand-in, not your domain")
     inputs = {**header["inputs"], "scenes": cons["inputs"]}
+    realism_json = realism_section(realism, seg, rows_shown)
     metrics = {
         "format": header["format"],
         "run": header["run"],
@@ -326,6 +375,7 @@ def assemble_metrics(*, header: dict, s, rows_shown: Sequence[str], realism: dic
         **realism["fid"],
         "fid_kid": realism["fid_info"],
         "proxy": realism["proxy"],
+        "realism": realism_json,
         **seg["dice"],
         "dice_info": seg["info"],
         "of_error": of_error,
@@ -336,6 +386,7 @@ def assemble_metrics(*, header: dict, s, rows_shown: Sequence[str], realism: dic
         "rows": table,
         "row_curves": {row: pooled[row]["orb_curve"] for row in rows_shown},
         "position": pos,
+        "calibration": calib,
         "anchors": {"ceiling": "the stand-in real domain rendered on the evaluated views with one appearance",
                     "floor": f"the stand-in with a new appearance every frame (a pool of {s.orb_max_k + 1}, frame t "
                              f"takes t mod {s.orb_max_k + 1})", "a_ref": "the untranslated reference rendering",
@@ -346,6 +397,28 @@ def assemble_metrics(*, header: dict, s, rows_shown: Sequence[str], realism: dic
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
     }
     return json_safe(metrics)
+
+
+def realism_section(realism: dict, seg: dict, rows_shown: Sequence[str]) -> dict:
+    """metrics.json's ``realism``: every realism measure with its value per row (``model``,
+    ``ceiling``, ``floor``, ``a_ref``, ``real_held_out``: real images not used as the reference)
+    and ``better`` ("lower" or "higher"), so that a reader ranks rows without knowing the measure."""
+    rows_all = list(rows_shown) + ["real_held_out"]
+    out: dict[str, dict] = {}
+    for name, m in realism.get("measures", {}).items():
+        out[name] = {"better": m["better"], "null": m["null"], "rows": {r: m["rows"].get(r) for r in rows_all},
+                     "details": m["details"], "seconds": round(m["seconds"], 3), "reason": m["reason"]}
+    per_row = realism["rows"]
+    fid_reason = realism["reason"]
+    for name, key, better, why in (
+            ("fid", "fid", "lower", fid_reason), ("kid", "kid", "lower", fid_reason),
+            ("proxy", "proxy", "lower", None)):
+        out[name] = {"better": better, "rows": {r: per_row.get(r, {}).get(key) for r in rows_shown},
+                     "reason": why}
+        out[name]["rows"]["real_held_out"] = None  # compared with all the real images, none is held out
+    out["dice"] = {"better": "higher", "rows": {r: seg["rows"].get(r) for r in rows_shown}, "reason": seg["reason"]}
+    out["dice"]["rows"]["real_held_out"] = seg["dice"]["dice_real_held_out"]
+    return out
 
 
 def report_stage(metrics: dict, out: Path, vs: ViewSet, real_imgs, seq_samples: dict, s) -> dict:
