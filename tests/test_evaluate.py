@@ -16,7 +16,7 @@ from train_data import real_dir, scene_dir
 
 TOP_KEYS = {"format", "run", "settings", "inputs", "fid", "kid_mean", "kid_std", "fid_kid", "proxy", "dice", "dice_a_ref",
             "dice_real_train", "dice_real_held_out", "dice_ceiling", "dice_info", "of_error", "of_epe", "orb", "orb_curve",
-            "revisit", "rows", "row_curves", "realism", "position", "calibration", "anchors", "warnings", "per_scene", "reasons", "seconds"}
+            "revisit", "odometry", "rows", "row_curves", "realism", "position", "calibration", "anchors", "warnings", "per_scene", "reasons", "seconds"}
 ROW_NAMES = {"model", "ceiling", "floor", "a_ref"}
 REASON_KEYS = {"fid", "dice", "of_error", "orb", "revisit"}
 ORB_KEYS = {"k", "accuracy", "mean_correct", "correct", "total", "pairs", "mean_matches"}

@@ -2,10 +2,12 @@
 
     sim2real evaluate RUN --scenes SCENE_DIR... --real DIR --out DIR
                       [--trajectory FILE... (one per scene) | --frames 100] [--views 64]
+    sim2real evaluate --frames DIR|VIDEO --trajectory FILE --scene SCENE_DIR --real DIR --out DIR
                       [--fid-weights PATH] [--device auto|cpu|cuda] [--checkpoint PATH]
                       [--seg-iterations 600] [--seg-size 32x64] [--seg-seeds 3] [--max-real 500] [--batch 8] [--seed 0]
 
-Writes DIR/metrics.json, DIR/report.md, DIR/report.html, DIR/plots/, DIR/samples/, DIR/videos/
+The second form evaluates a video made by any tool along the trajectory of the scene
+(:mod:`sim2real.inference.external`). Writes DIR/metrics.json, DIR/report.md, DIR/report.html, DIR/plots/, DIR/samples/, DIR/videos/
 (docs/formats.md, "Evaluation").
 """
 
@@ -26,16 +28,26 @@ def _size(text: str) -> tuple[int, int]:
     return h, w
 
 
+def _frames(text: str) -> int | str:
+    """A frame count, or a path (a folder of frames or a video)."""
+    if text.isdigit():
+        return positive_int(text)
+    return text
+
+
 def register(sub) -> None:
     p = sub.add_parser("evaluate", help="the paper's realism and consistency metrics, with a report")
-    p.add_argument("run", metavar="RUN", help="training run folder (uses RUN/checkpoints/last.pt)")
-    p.add_argument("--scenes", nargs="+", required=True, metavar="SCENE_DIR", help="scene folders the run was trained on")
+    p.add_argument("run", metavar="RUN", nargs="?",
+                   help="training run folder (uses RUN/checkpoints/last.pt); none with --frames DIR|VIDEO")
+    p.add_argument("--scenes", "--scene", nargs="+", required=True, metavar="SCENE_DIR",
+                   help="scene folders the run was trained on (with --frames DIR|VIDEO: the one scene of the video)")
     p.add_argument("--real", required=True, metavar="DIR",
                    help="real images: DIR/images/ (+ DIR/labels/ for Dice) or a folder of PNG/JPEG files")
     p.add_argument("--out", required=True, metavar="DIR", help="new or empty output folder")
-    seq = p.add_mutually_exclusive_group()
-    seq.add_argument("--trajectory", nargs="+", metavar="FILE", help="one trajectory file per scene (in --scenes order)")
-    seq.add_argument("--frames", type=positive_int, default=100, help="frames of each generated trajectory (default 100)")
+    p.add_argument("--frames", type=_frames, default=100, metavar="N|DIR|VIDEO",
+                     help="frames of each generated trajectory (default 100); or a folder of frames or a video made "
+                          "by any tool along --trajectory FILE, to evaluate instead of a run")
+    p.add_argument("--trajectory", nargs="+", metavar="FILE", help="one trajectory file per scene (in --scenes order)")
     p.add_argument("--views", type=positive_int, default=64, help="random translated views for FID/KID and Dice (default 64)")
     p.add_argument("--fid-weights", metavar="PATH",
                    help="FID Inception weights (pt_inception-2015-12-05-6726825d.pth); default $SIM2REAL_FID_WEIGHTS")
@@ -59,16 +71,32 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sim2real.errors import UserError
     from sim2real.inference.evaluate import EvalSettings, evaluate
 
-    s = EvalSettings(views=args.views, frames=args.frames, batch=args.batch, seed=args.seed, max_real=args.max_real,
+    video = args.frames if isinstance(args.frames, str) else None
+    if video is None and args.run is None:
+        raise UserError("give a run folder RUN, or a video to evaluate with --frames DIR|VIDEO")
+    if video is not None and args.run is not None:
+        raise UserError("give either a run folder RUN or --frames DIR|VIDEO, not both")
+    if video is not None and (not args.trajectory or len(args.trajectory) != 1 or len(args.scenes) != 1):
+        raise UserError("--frames DIR|VIDEO needs exactly one --trajectory FILE and one --scene DIR (the video's path)")
+    if video is None and args.trajectory is not None and args.frames != 100:
+        raise UserError("give either --trajectory FILE... or --frames N, not both")
+    s = EvalSettings(views=args.views, frames=100 if video else args.frames, batch=args.batch, seed=args.seed, max_real=args.max_real,
                      seg_iterations=args.seg_iterations, seg_height=args.seg_size[0], seg_width=args.seg_size[1],
                      orb_features=args.orb_features, orb_max_k=args.orb_max_k, threshold_mm=args.threshold_mm,
                      workers=args.workers, anchors=not args.no_anchors, seg_seeds=args.seg_seeds,
                      trajectory=motion_kwargs(args))
-    m = evaluate(args.run, args.scenes, args.real, args.out, trajectories=args.trajectory, settings=s,
-                 fid_weights=args.fid_weights, device=args.device, checkpoint=args.checkpoint,
-                 progress=not args.no_progress)
+    if video is not None:
+        from sim2real.inference.external import evaluate_frames  # loads the trainer's device logic: only here
+
+        m = evaluate_frames(video, args.scenes[0], args.trajectory[0], args.real, args.out, settings=s,
+                            fid_weights=args.fid_weights, device=args.device, progress=not args.no_progress)
+    else:
+        m = evaluate(args.run, args.scenes, args.real, args.out, trajectories=args.trajectory, settings=s,
+                     fid_weights=args.fid_weights, device=args.device, checkpoint=args.checkpoint,
+                     progress=not args.no_progress)
 
     def f(v, fmt="{:.4g}"):
         return "n/a" if v is None else fmt.format(v)

@@ -3,20 +3,27 @@ several seeds, cached per real folder.
 
 Protocol (every number is an :class:`~sim2real.inference.evaluate.EvalSettings` field):
 
-* The labelled real images are split once (seeded) into a training part and a held-out part
-  (``seg_holdout``, at least one image). Each of ``seg_seeds`` segmenters
-  (:func:`sim2real.metrics.segmenter.train_segmenter`, flips + random resized crops) trains for
-  at most ``seg_iterations`` steps and stops when its held-out Dice stops improving.
+* The labelled real images (the user's own labels, or the stand-in's) are split once (seeded)
+  into a training part and a held-out part (``seg_holdout``, at least one image). Each of
+  ``seg_seeds`` segmenters (:func:`sim2real.metrics.segmenter.train_segmenter`, flips + random
+  resized crops) trains for exactly ``seg_iterations`` steps, **deterministically**: on the CPU,
+  with one thread, seeded, no early stopping (a stopping rule moves with the kernels' rounding:
+  on a fresh machine the demo's Dice once came out 0.89-0.97 where it had been 0.958). The
+  segmenters are small (32x64 inputs), so the CPU costs little even where a GPU is present, and
+  the same library versions give the same weights on every machine.
 * A set of frames is scored by every segmenter. Its Dice is the mean over the seeds, reported
   with the per-seed values and their spread (max - min). A spread above ``seg_max_spread``
   (0.05) makes the figure **unstable**: the value is ``None`` and the reason gives the range.
 * Trained segmenters are cached under ``$SIM2REAL_CACHE`` (default ``~/.cache/sim2real``) in
-  ``segmenters/KEY/``, KEY = SHA-256 of the labelled files' contents and every setting that
-  changes training, so that evaluating many methods on one real folder trains them once.
+  ``segmenters/KEY/``, KEY = SHA-256 of the labelled files' contents, every setting that
+  changes training and the versions of torch, numpy and Pillow (which decode, resize and train),
+  so that evaluating many methods on one real folder trains them once, and a cache made by other
+  library versions is not reused.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -25,11 +32,19 @@ from typing import Sequence
 
 import numpy as np
 
-CACHE_FORMAT = "sim2real-segmenter-cache/1"
+CACHE_FORMAT = "sim2real-segmenter-cache/2"
 
 
 def cache_root() -> Path:
     return Path(os.environ.get("SIM2REAL_CACHE") or Path.home() / ".cache" / "sim2real")
+
+
+def library_versions() -> dict:
+    """The versions that change a trained segmenter's weights."""
+    import PIL
+    import torch
+
+    return {"torch": torch.__version__, "numpy": np.__version__, "pillow": PIL.__version__}
 
 
 def cache_key(labelled: Sequence[tuple[Path, Path]], spec: dict) -> str:
@@ -41,6 +56,20 @@ def cache_key(labelled: Sequence[tuple[Path, Path]], spec: dict) -> str:
             h.update(p.name.encode())
             h.update(hashlib.sha256(p.read_bytes()).digest())
     return h.hexdigest()[:32]
+
+
+@contextlib.contextmanager
+def one_cpu_thread():
+    """torch on one CPU thread inside the block (then as before): a reduction's order, and so its
+    rounding, depends on the thread count."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -64,7 +93,8 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
 
     spec = {"height": s.seg_height, "width": s.seg_width, "iterations": s.seg_iterations, "batch": s.seg_batch,
             "holdout": s.seg_holdout, "split_seed": s.seed, "crops": True, "flips": True, "base_channels": 16,
-            "depth": 3, "check_every": s.seg_check_every}
+            "depth": 3, "check_every": s.seg_check_every, "early_stop": False, "device": "cpu", "threads": 1,
+            "lr": 1e-3, "libraries": library_versions()}
     x, y = load_segmentation_set(labelled, s.seg_height, s.seg_width)
     tr, ho = split(len(labelled), s.seg_holdout, s.seed)
     key = cache_key(labelled, spec)
@@ -87,10 +117,12 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
             say(f"Dice: training liver U-Net seed {seed} on {len(tr)} labelled real images "
                 f"(held out: {len(ho)}; at most {s.seg_iterations} steps)")
             hist: list = []
-            model = train_segmenter(x[tr], y[tr], s.seg_iterations, device=device, seed=seed, batch_size=s.seg_batch,
-                                    crops=True, val=(x[ho], y[ho]), check_every=s.seg_check_every, history=hist,
-                                    progress=progress)
-            meta = {"seed": seed, "history": hist, "steps": hist[-1][0] if hist else s.seg_iterations}
+            with one_cpu_thread():
+                model = train_segmenter(x[tr], y[tr], s.seg_iterations, device="cpu", seed=seed, batch_size=s.seg_batch,
+                                        crops=True, val=(x[ho], y[ho]), check_every=s.seg_check_every, history=hist,
+                                        progress=progress, early_stop=False)
+            model = model.to(device)
+            meta = {"seed": seed, "history": hist, "steps": s.seg_iterations}
             import io
 
             buf = io.BytesIO()

@@ -95,10 +95,13 @@ class EvalSettings:
     """An ORB match is correct when its two 3D points are closer than this (paper: 1 mm)."""
     kid_subset_size: int = 1000
     kid_subsets: int = 100
+    odometry_pairs: int = 30
+    """Frame pairs per k (evenly spaced) of the downstream odometry (:mod:`sim2real.metrics.odometry`; 0: off)."""
     c2st_steps: int = 150
     """Training steps of the classifier two-sample test (0: not computed)."""
-    realism_kid: bool = True
-    """Compute the KID in a fixed random network's features."""
+    realism_kid: bool = False
+    """Also compute the KID in a fixed random network's features. Off by default: on the stand-in and
+    on real footage it did not rank a blurred video below real frames (docs/evaluation.md)."""
     workers: int | None = None
     """Ray-casting processes (None: automatic)."""
     samples: int = 4
@@ -142,12 +145,27 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
             raise UserError(f"scene '{sc.name}' is given twice")
         scenes.append((sc, Path(d).resolve()))
     trajs = [Trajectory.load(t) for t in trajectories] if trajectories is not None else None
+    H, W = model.train_size
+    run_info = {"dir": str(Path(run).resolve()), "checkpoint": str(model.checkpoint.resolve()), "step": model.step,
+                "method": model.method.name, "device": str(model.device), "amp_bf16": model.amp,
+                "train_height": H, "train_width": W}
+    return run_stages(model, scenes, trajs, trajectories, real, out, s, fid_weights, (H, W, model.cfg.data.fov_x_deg),
+                      run_info, progress, t_start)
+
+
+def run_stages(model, scenes: list, trajs, trajectory_files, real, out, s: EvalSettings, fid_weights,
+               size: tuple[int, int, float], run_info: dict, progress: bool, t_start: float,
+               view_cameras: dict | None = None, view_index: list[int] | None = None) -> dict:
+    """The evaluation of ``model`` (a trained run, or any object with its ``translate_views``,
+    ``sequence``, ``time_independent`` and ``device``) on checked inputs: the stages, in order.
+    ``view_cameras`` (scene name -> cameras) replaces the random views, ``view_index`` their anchor
+    frame indices."""
+    say = stderr_say(progress)
     real_set = find_real(real)
     status = fid_weights_status(fid_weights)
     inception = load_fid_inception(status["path"], model.device) if status["available"] else None
     out = prepare_output_dir(out)
-    H, W = model.train_size
-    size = (H, W, model.cfg.data.fov_x_deg)
+    H, W, _ = size
     seconds: dict[str, float] = {}
 
     # ---- anchors: the ceiling and the floor of every metric ----
@@ -165,22 +183,20 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     real_imgs = [fit_image(load_rgb(p), H, W) for p in use]
 
     with timed(seconds, "views"):
-        vs = views_stage(model, scenes, casters, anchors, real_imgs, s, rows_shown, size, progress)
-    with timed(seconds, "fid_kid"):
+        vs = views_stage(model, scenes, casters, anchors, real_imgs, s, rows_shown, size, progress,
+                         cameras=view_cameras, view_index=view_index)
+    with timed(seconds, "realism"):
         realism = realism_stage(vs, real_imgs, inception, status, s, rows_shown, say, model.device)
     del inception
     with timed(seconds, "dice"):
         seg = segmentation_stage(real_set, vs, s, model.device, rows_shown, progress, say)
     with timed(seconds, "consistency"):
-        cons = consistency_stage(model, scenes, casters, anchors, s, rows_shown, out, size, trajs, trajectories,
+        cons = consistency_stage(model, scenes, casters, anchors, s, rows_shown, out, size, trajs, trajectory_files,
                                  progress)
     casters.clear()
     seconds["total"] = time.perf_counter() - t_start
 
-    header = {"format": FORMAT,
-              "run": {"dir": str(Path(run).resolve()), "checkpoint": str(model.checkpoint.resolve()), "step": model.step,
-                      "method": model.method.name, "device": str(model.device), "amp_bf16": model.amp,
-                      "train_height": H, "train_width": W},
+    header = {"format": FORMAT, "run": run_info,
               "inputs": {"real": {"dir": str(Path(real).resolve()), "images": len(real_set.images), "images_used": len(use),
                                   "labelled": len(real_set.labelled), "stand_in": real_is_stand_in}}}
     metrics = assemble_metrics(header=header, s=s, rows_shown=rows_shown, realism=realism, seg=seg, cons=cons,
@@ -198,8 +214,9 @@ def check_settings(s: EvalSettings) -> None:
             raise UserError(f"evaluation setting {name} must be positive, got {getattr(s, name)}")
     if s.frames < 2:
         raise UserError(f"a trajectory needs at least 2 frames, got {s.frames}")
-    if s.seg_iterations < 0 or s.c2st_steps < 0:
-        raise UserError(f"seg_iterations and c2st_steps must be >= 0, got {s.seg_iterations}, {s.c2st_steps}")
+    for name in ("seg_iterations", "c2st_steps", "odometry_pairs"):
+        if getattr(s, name) < 0:
+            raise UserError(f"evaluation setting {name} must be >= 0, got {getattr(s, name)}")
     if not s.threshold_mm > 0:
         raise UserError(f"threshold_mm must be positive, got {s.threshold_mm}")
     if not 0 < s.seg_holdout < 1:

@@ -143,8 +143,11 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
     r = m["reasons"]
     run = m["run"]
     b: list[tuple] = [("h", 1, "sim2real evaluation")]
-    b.append(("p", f"Run {run['dir']} — checkpoint {run['checkpoint']} (step {run['step']}, method '{run['method']}'), "
-                   f"evaluated on {run['device']} at the training size {run['train_height']}×{run['train_width']}. "
+    what = (f"The video {run['frames']} (made by any tool along the trajectory), evaluated on {run['device']} at its "
+            f"cameras' size {run['train_height']}×{run['train_width']}. " if run.get("frames") else
+            f"Run {run['dir']} — checkpoint {run['checkpoint']} (step {run['step']}, method '{run['method']}'), "
+            f"evaluated on {run['device']} at the training size {run['train_height']}×{run['train_width']}. ")
+    b.append(("p", what +
                    f"Scenes: {', '.join(s['name'] for s in m['inputs']['scenes'])}. "
                    f"Real images: {m['inputs']['real']['dir']} ({m['inputs']['real']['images_used']} used of "
                    f"{m['inputs']['real']['images']}; {m['inputs']['real']['labelled']} labelled)."))
@@ -197,6 +200,7 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
         rows.append([name, str(s["frames"]), _num(mr["of_error"])] + [_orb_cell(mr["orb_curve"][k]) for k in m["orb"]])
     b.append(("table", ["scene", "frames", "OF error"] + [f"ORB-{k}" for k in m["orb"]], rows))
 
+    b += odometry_blocks(m)
     ks = [int(k) for k in m["orb_curve"]]
     curves = m.get("row_curves") or {"model": m["orb_curve"]}
     acc = {row: [(k, c[str(k)]["accuracy"]) for k in ks] for row, c in curves.items() if row != "a_ref"}
@@ -252,6 +256,28 @@ def realism_beside_blocks(m: dict) -> list[tuple]:
     notes = [f"{k}: {real[k]['reason']}" for k in ("c2st", "random_kid") if k in real and real[k].get("reason")]
     if notes:
         b.append(("p", "Not computed: " + " | ".join(notes)))
+    return b
+
+
+def odometry_blocks(m: dict) -> list[tuple]:
+    """The downstream odometry table: per row, success rate and median errors for k = 1, 5, 10."""
+    odo = m.get("odometry") or {}
+    if not odo.get("rows"):
+        return []
+    b: list[tuple] = [("h", 3, "Downstream odometry"),
+                      ("p", f"Two-view relative pose between frames k apart ({odo['method']}). A success is {odo['success']}; "
+                            f"a pair without a pose counts as a failure and as a 180° error in the medians. At most "
+                            f"{odo['pairs_per_k']} pairs per k, evenly spaced.")]
+    table = []
+    for row, per_k in odo["rows"].items():
+        cells = []
+        for k, e in per_k.items():
+            rate = "n/a" if e["success_rate"] is None else f"{100 * e['success_rate']:.0f}%"
+            cells.append(f"{rate} ({_num(e['median_rotation_error_deg'], 2)}° / {_num(e['median_translation_error_deg'], 2)}°)")
+        table.append([_ROW_LABELS.get(row, row)] + cells)
+    ks = list(next(iter(odo["rows"].values())))
+    b.append(("table", ["row"] + [f"k = {k}: success (median rotation / translation direction error)" for k in ks],
+              table))
     return b
 
 

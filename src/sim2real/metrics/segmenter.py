@@ -83,12 +83,15 @@ def _check_images(images: Tensor) -> Tensor:
 def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, device: str | torch.device | None = None,
                     seed: int = 0, *, batch_size: int = 8, lr: float = 1e-3, base_channels: int = 16,
                     depth: int = 3, flips: bool = True, crops: bool = False, val: tuple[Tensor, Tensor] | None = None,
-                    check_every: int = 100, patience: int = 3, progress: bool = False, history: list | None = None) -> LiverUNet:
+                    check_every: int = 100, patience: int = 3, progress: bool = False, history: list | None = None,
+                    early_stop: bool = True) -> LiverUNet:
     """Train a :class:`LiverUNet` on (images (N,3,H,W) in [0,1], labels (N,H,W) bool).
 
     ``iterations`` Adam steps on random mini-batches of ``batch_size`` (with replacement across
     steps). ``device`` defaults to the images' device. ``progress`` shows a progress bar.
-    Returns the model in eval mode, on ``device``.
+    ``early_stop=False`` trains exactly ``iterations`` steps and keeps the last weights (the
+    validation Dice is still recorded in ``history``): the step count then does not depend on
+    how the kernels round. Returns the model in eval mode, on ``device``.
     """
     from tqdm import tqdm
 
@@ -125,7 +128,7 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
                 best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
             else:
                 since += 1
-                if since >= patience:
+                if since >= patience and early_stop:
                     break
         idx = torch.randint(0, n, (min(batch_size, n),), generator=gen).to(device)
         x, y = x_all[idx], y_all[idx]
@@ -143,7 +146,7 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
-    if best_state is not None:
+    if best_state is not None and early_stop:
         d = dice_score(predict(model, val[0]), val[1])
         if history is not None:
             history.append((it + 1, d))

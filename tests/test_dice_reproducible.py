@@ -1,0 +1,47 @@
+"""A Dice that reproduces: segmenters trained in two fresh caches give the same weights and the same
+Dice, with a fixed number of steps; the cache key holds the library versions."""
+
+import numpy as np
+import pytest
+import torch
+
+from eval_data import labelled_real_dir
+from sim2real.inference import dice as dice_mod
+from sim2real.inference.evaluate import EvalSettings
+from sim2real.inference.realset import find_real, fit_image
+from sim2real.data.real import load_rgb
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def test_dice_equal_across_two_fresh_caches(tmp_path_factory, monkeypatch):
+    base = tmp_path_factory.getbasetemp()
+    labelled = find_real(labelled_real_dir(base)).labelled
+    s = EvalSettings(seg_iterations=12, seg_seeds=2, seg_check_every=5)
+    frames = [load_rgb(p) for p, _ in labelled]
+    gt = np.stack([fit_image((np.array(load_rgb(lp))[..., 0] == 0).astype(np.uint8), 32, 64, nearest=True).astype(bool)
+                   for _, lp in labelled])
+    results = []
+    for k in range(2):
+        monkeypatch.setenv("SIM2REAL_CACHE", str(tmp_path_factory.mktemp(f"fresh_cache_{k}")))
+        torch.set_num_threads(1 + k)  # the caller's thread count must not matter
+        models, info = dice_mod.segmenters(labelled, s, "cpu", progress=False, say=lambda m: None)
+        assert torch.get_num_threads() == 1 + k  # restored after training
+        assert all(not m["cached"] and m["steps"] == 12 for m in info["per_seed"])
+        results.append((dice_mod.dice_of(models, frames, gt, s)["per_seed"],
+                        [m.state_dict()["head.weight"].clone() if "head.weight" in m.state_dict()
+                         else next(iter(m.state_dict().values())).clone() for m in models]))
+    torch.set_num_threads(1)
+    assert results[0][0] == results[1][0]
+    assert all(torch.equal(a, b) for a, b in zip(results[0][1], results[1][1]))
+
+
+def test_cache_key_holds_library_versions_and_settings(tmp_path_factory, monkeypatch):
+    labelled = find_real(labelled_real_dir(tmp_path_factory.getbasetemp())).labelled
+    spec = {"iterations": 12, "libraries": dice_mod.library_versions()}
+    key = dice_mod.cache_key(labelled, spec)
+    assert dice_mod.cache_key(labelled, dict(spec)) == key
+    assert dice_mod.cache_key(labelled, {**spec, "iterations": 13}) != key
+    monkeypatch.setattr(torch, "__version__", "0.0.1")
+    assert dice_mod.library_versions()["torch"] == "0.0.1"
+    assert dice_mod.cache_key(labelled, {"iterations": 12, "libraries": dice_mod.library_versions()}) != key
