@@ -8,7 +8,7 @@ import torch
 from eval_data import labelled_real_dir
 from sim2real.inference import dice as dice_mod
 from sim2real.inference.evaluate import EvalSettings
-from sim2real.inference.realset import find_real, fit_image
+from sim2real.inference.realimages import find_real, fit_image
 from sim2real.data.real import load_rgb
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

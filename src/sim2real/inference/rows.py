@@ -162,7 +162,8 @@ def positions(rows: dict[str, dict], calibrated: dict | None = None) -> dict:
     return out
 
 
-def calibrated_metric(metric: str, rows: dict[str, dict], margin: float = CALIBRATION_MARGIN) -> tuple[bool, str | None]:
+def calibrated_metric(metric: str, rows: dict[str, dict],
+                      margin: float = CALIBRATION_MARGIN) -> tuple[bool, str | None]:
     """(True, None) when the ceiling clears the rows it must beat by ``margin`` of its value on
     this metric (module docstring of :data:`CALIBRATION_MARGIN`), else (False, why)."""
     d = direction(metric)
@@ -190,7 +191,8 @@ def calibration(rows: dict[str, dict], stand_in: bool, margin: float = CALIBRATI
     is uncalibrated (:func:`calibrated_metric`), else "calibrated". ``metrics``: per metric."""
     metrics = {}
     for name in rows["model"]:
-        ok, why = calibrated_metric(name, rows, margin) if stand_in else (False, "no ceiling exists for this real domain")
+        ok, why = (calibrated_metric(name, rows, margin) if stand_in
+                   else (False, "no ceiling exists for this real domain"))
         metrics[name] = {"calibrated": ok, "reason": why}
     key = [f"orb_{k}_correct" for k in PAPER_KS] + ["of_error"]
     bad = [k for k in key if k in metrics and not metrics[k]["calibrated"]]

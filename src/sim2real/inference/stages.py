@@ -221,7 +221,8 @@ def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[st
         return {"dice": dice, "info": info, "rows": values, "reason": reason}
     segs, seg_info = segmenters(labelled, s, device, progress=progress, say=say)
     info.update(seg_info)
-    gt = np.stack([fit_image(m.astype(np.uint8), s.seg_height, s.seg_width, nearest=True).astype(bool) for m in vs.liver])
+    gt = np.stack([fit_image(m.astype(np.uint8), s.seg_height, s.seg_width, nearest=True).astype(bool)
+                   for m in vs.liver])
     for row in rows_shown:
         frames = vs.scored[row]
         info["rows"][row] = d = dice_of(segs, frames, np.concatenate([gt] * (len(frames) // len(gt))), s)
