@@ -146,3 +146,24 @@ def test_report_stage(setup, views, consistency, tmp_path):
     report_stage(m, tmp_path, views, real, c["samples"], setup.s)
     assert json.loads((tmp_path / "metrics.json").read_text()) == m
     assert (tmp_path / "samples" / "views.png").is_file() and "ORB-1" in (tmp_path / "report.md").read_text()
+
+
+def test_weight_free_realism_rows():
+    """Every row is compared with half of the real images, the other half is the null row; flat
+    frames are told apart from textured real ones, the real images' other half is not."""
+    from sim2real.inference.stages import weight_free_realism
+
+    rng = np.random.default_rng(3)
+    real = [rng.integers(60, 200, (24, 32, 3), dtype=np.uint8) for _ in range(16)]
+    flat = [np.full((24, 32, 3), 128, np.uint8)] * 8
+    s = EvalSettings(c2st_steps=40, realism_kid=True)
+    m = weight_free_realism({"model": real[:8], "a_ref": flat}, real, s, ["model", "a_ref"])
+    c = m["c2st"]
+    assert c["better"] == "lower" and c["null"] == 0.5 and set(c["rows"]) == {"model", "a_ref", "real_held_out"}
+    assert c["rows"]["a_ref"] == 1.0 and c["details"]["a_ref"]["n_test"] == 8
+    assert c["rows"]["real_held_out"] < 1.0
+    k = m["random_kid"]
+    assert k["rows"]["a_ref"] > 10 * max(abs(k["rows"]["real_held_out"]), 1e-6)
+    off = weight_free_realism({"model": real[:8]}, real, EvalSettings(c2st_steps=0), ["model"])
+    assert off["c2st"]["rows"]["model"] is None and "switched off" in off["c2st"]["reason"]
+    assert "off by default" in off["random_kid"]["reason"]

@@ -150,8 +150,8 @@ def _crops(x: torch.Tensor, size: int, rng: np.random.Generator) -> torch.Tensor
     return torch.stack(out)
 
 
-def c2st(gen: Sequence[np.ndarray], real: Sequence[np.ndarray], seed: int = 0, steps: int = 150, batch: int = 32,
-         crop: int = 64, lr: float = 2e-3, device="cpu") -> dict:
+def c2st(gen: Sequence[np.ndarray], real: Sequence[np.ndarray], seed: int = 0, steps: int = 150, batch: int = 16,
+         crop: int = 48, lr: float = 2e-3, device="cpu") -> dict:
     r"""Classifier two-sample test of ``gen`` against ``real``.
 
     Both sets are cut to the smaller one's size ``n`` (a seeded subset) and each is split in
@@ -165,6 +165,10 @@ def c2st(gen: Sequence[np.ndarray], real: Sequence[np.ndarray], seed: int = 0, s
     * ``auc`` = Mann-Whitney :math:`U / t^2`: the probability that a held-out ``gen`` frame
       scores above a held-out ``real`` one (0.5 under the null, 1 when always told apart);
     * ``n_test`` = ``2t``.
+
+    Cost: ``steps * batch`` crops of ``crop``² pixels; the defaults (150 steps of 16 crops of 48
+    pixels) took 1.5 s of one CPU core on the 2-core dev machine (32 frames of 128x256 against
+    100 real ones), 32 crops of 64 pixels 5.7 s.
 
     Lower accuracy is better (0.5: indistinguishable). Seeded: torch's and numpy's generators
     are derived from ``seed`` and the caller's torch RNG is left as it was.
