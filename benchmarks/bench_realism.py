@@ -33,7 +33,7 @@ import torch
 
 from sim2real.data.real import list_images, load_rgb
 from sim2real.inference.anchors import Anchors, stand_in_options
-from sim2real.inference.realset import find_real, fit_image, to_nchw
+from sim2real.inference.realimages import find_real, fit_image, to_nchw
 from sim2real.metrics.perturb import blurred, lined, specked
 from sim2real.metrics.realism import proxy_colour_texture_distance
 from sim2real.metrics.twosample import RANDOM_NET_SEED, c2st, random_kid
