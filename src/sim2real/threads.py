@@ -9,6 +9,7 @@ worker calls :func:`single_thread_worker` first.
 
 from __future__ import annotations
 
+import contextlib
 import os
 
 
@@ -66,3 +67,19 @@ def single_thread_worker(*_args) -> None:
     threadpool_limits(limits=1)
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
+
+
+@contextlib.contextmanager
+def one_torch_thread():
+    """torch on one CPU thread inside the block, then as before: a reduction's order, and so its
+    rounding, depends on the thread count, and small networks gain nothing from a second thread
+    on a busy machine (two threads spinning against other jobs ran 10x slower on the dev machine)."""
+    import torch  # this module is imported by torch-free worker processes
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+

@@ -23,7 +23,6 @@ Protocol (every number is an :class:`~sim2real.inference.evaluate.EvalSettings` 
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
@@ -31,6 +30,8 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+
+from sim2real.threads import one_torch_thread
 
 CACHE_FORMAT = "sim2real-segmenter-cache/2"
 
@@ -56,20 +57,6 @@ def cache_key(labelled: Sequence[tuple[Path, Path]], spec: dict) -> str:
             h.update(p.name.encode())
             h.update(hashlib.sha256(p.read_bytes()).digest())
     return h.hexdigest()[:32]
-
-
-@contextlib.contextmanager
-def one_cpu_thread():
-    """torch on one CPU thread inside the block (then as before): a reduction's order, and so its
-    rounding, depends on the thread count."""
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -117,7 +104,7 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
             say(f"Dice: training liver U-Net seed {seed} on {len(tr)} labelled real images "
                 f"(held out: {len(ho)}; at most {s.seg_iterations} steps)")
             hist: list = []
-            with one_cpu_thread():
+            with one_torch_thread():
                 model = train_segmenter(x[tr], y[tr], s.seg_iterations, device="cpu", seed=seed, batch_size=s.seg_batch,
                                         crops=True, val=(x[ho], y[ho]), check_every=s.seg_check_every, history=hist,
                                         progress=progress, early_stop=False)

@@ -226,7 +226,7 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
 
 _BESIDE = [("orb_1_correct", "ORB-1 correct / pair", "higher"), ("orb_10_correct", "ORB-10 correct / pair", "higher"),
            ("of_error", "OF error (px)", "lower")]
-_BESIDE_REALISM = [("c2st", "C2ST accuracy (0.5 = as real)"), ("random_kid", "KID, random-net features (0 = as real)"),
+_BESIDE_REALISM = [("c2st", "C2ST AUC (0.5 = as real)"), ("random_kid", "KID, random-net features (0 = as real)"),
                    ("dice", "Dice"), ("fid", "FID"), ("kid", "KID (Inception)")]
 _ROW_LABELS = {"model": "model", "ceiling": "ceiling (a perfect video)", "floor": "floor (a flickering video)",
                "a_ref": "a_ref (untranslated)", "real_held_out": "real images (held out)"}
@@ -249,8 +249,9 @@ def realism_beside_blocks(m: dict) -> list[tuple]:
                       ("p", "Consistency counts reward any pattern that stays on the surface, realistic or not; the "
                             "realism measures say whether the frames look like the real images. Read them together. "
                             "The realism measures compare each row with half of the real images; the other half "
-                            "(real images, held out) shows the value of real frames themselves. C2ST: held-out "
-                            "accuracy of a small CNN trained to tell the row's frames from real ones (0.5: it cannot); "
+                            "(real images, held out) shows the value of real frames themselves. C2ST: held-out AUC "
+                            "of a small CNN trained to tell the row's frames from real ones (0.5: it cannot, 1: "
+                            "always); "
                             "KID in the features of a fixed random network (0: the same distribution)."),
                       ("table", header, table)]
     notes = [f"{k}: {real[k]['reason']}" for k in ("c2st", "random_kid") if k in real and real[k].get("reason")]
@@ -293,7 +294,7 @@ _CAL_METRICS = [
     ("dice", "Dice (mean over segmenter seeds)", False), ("proxy", "proxy colour+texture distance (not FID)", False),
     ("detail", "detail: mean grey gradient / the real images'", True),
     ("fid", "FID", False), ("kid", "KID", False),
-    ("c2st", "C2ST accuracy (0.5 = as real)", True), ("random_kid", "KID in random-network features", False),
+    ("c2st", "C2ST AUC (0.5 = as real)", False), ("random_kid", "KID in random-network features", False),
 ]
 
 
