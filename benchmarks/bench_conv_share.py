@@ -119,10 +119,10 @@ def main() -> None:
     from torch.utils.data import default_collate
 
     from sim2real.config import override
-    from sim2real.presets import preset as get_preset
     from sim2real.data.datasets import TrainPairs, resolve_scenes
     from sim2real.data.real import RealImages
     from sim2real.engine.trainer import Trainer
+    from sim2real.presets import preset as get_preset
 
     with tempfile.TemporaryDirectory(prefix="bench_conv_") as tmp:
         base = Path(tmp)

@@ -21,9 +21,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from sim2real.realdomain.writer import WorkerScenes, render_job
-from sim2real.pool import WorkerPool
 from sim2real import realdomain as rd
+from sim2real.pool import WorkerPool
+from sim2real.realdomain.writer import WorkerScenes, render_job
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.procedural import generate_scene
 from sim2real.scene.scene import Scene

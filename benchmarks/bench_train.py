@@ -99,9 +99,9 @@ def child(preset: str, impls: list[str], iters: int, base: Path, device_name: st
     from torch.utils.data import default_collate
 
     from sim2real.config import override
-    from sim2real.presets import preset as get_preset
     from sim2real.data.datasets import TrainPairs, resolve_scenes
     from sim2real.data.real import RealImages
+    from sim2real.presets import preset as get_preset
 
     scene, real = _inputs(base)
     cfg = override(get_preset(preset), ["method.vc_start=0", f"device={device_name}", "data.workers=0"])

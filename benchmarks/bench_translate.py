@@ -46,8 +46,8 @@ class _ARefSequence:
 
 def make_run(preset: str, scene_dir: Path, real_dir: Path, out: Path, device: str) -> Path:
     from sim2real.config import override
-    from sim2real.presets import preset as get_preset
     from sim2real.engine.trainer import Trainer
+    from sim2real.presets import preset as get_preset
 
     cfg = override(get_preset(preset), [f"device={device}", "data.height=256", "data.width=512"])
     trainer = Trainer(cfg, scenes=[str(scene_dir)], real=str(real_dir), out=out, progress=False)

@@ -81,9 +81,9 @@ def run(args) -> dict:
     import torch
 
     from sim2real.config import override
-    from sim2real.presets import budgeted
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.evaluate import EvalSettings, evaluate
+    from sim2real.presets import budgeted
     from sim2real.threads import usable_cores
 
     cfg = override(budgeted(args.preset, args.method, "cpu"), args.set)
@@ -93,8 +93,8 @@ def run(args) -> dict:
     record = out / "study.json"  # the run's minutes so far (a resumed row reports the total)
     before = json.loads(record.read_text())["minutes"] if args.resume else 0.0
     if args.resume:
-        from sim2real.presets import config_from_dict
         from sim2real.engine.checkpoint import load_checkpoint
+        from sim2real.presets import config_from_dict
 
         last = out / "run" / "checkpoints" / "last.pt"
         cfg = config_from_dict(load_checkpoint(last)["config"])

@@ -65,9 +65,9 @@ def distance(a: dict, b: dict) -> dict:
 
 def translate(state: dict, batches: list[dict]) -> tuple[torch.Tensor, torch.Tensor]:
     """(b_hat, a_tex) of view i of every batch, with the generator of checkpoint ``state``."""
-    from sim2real.presets import config_from_dict
     from sim2real.data.datasets import resolve_scenes
     from sim2real.methods import get_method
+    from sim2real.presets import config_from_dict
 
     cfg = config_from_dict(state["config"])
     method = get_method(cfg)
@@ -107,10 +107,10 @@ def save_textures(state: dict, path: Path) -> list[Path]:
 
 
 def main() -> None:
-    from sim2real.presets import config_from_dict
     from sim2real.data.datasets import TrainPairs, resolve_scenes
     from sim2real.data.real import RealImages
     from sim2real.engine.checkpoint import load_checkpoint
+    from sim2real.presets import config_from_dict
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run")

@@ -37,7 +37,6 @@ def main() -> None:
 
     from sim2real import shipped
     from sim2real.config import override
-    from sim2real.presets import config_from_dict
     from sim2real.data.real import load_rgb
     from sim2real.data.tensors import view_tensors
     from sim2real.engine.checkpoint import load_checkpoint
@@ -47,6 +46,7 @@ def main() -> None:
     from sim2real.losses import lsgan_gen_loss
     from sim2real.losses.structure import structure_ab_loss
     from sim2real.models.discriminator import MsImageDis
+    from sim2real.presets import config_from_dict
     from sim2real.render.raycast import RayCaster
     from sim2real.render.reference import reference_rendering, to_uint8
     from sim2real.scene.scene import Scene

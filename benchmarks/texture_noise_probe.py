@@ -12,11 +12,13 @@ import time
 from pathlib import Path
 
 import torch
+
 sys.path.insert(0, str(Path(__file__).parent))
 import detail_study
+
 from sim2real.config import override
-from sim2real.presets import budgeted
 from sim2real.engine.trainer import Trainer
+from sim2real.presets import budgeted
 
 
 def hp(x):  # texel minus the mean of its 4 neighbours, per plane and feature

@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
 from train_data import real_dir, scene_dir, tiny_config
 
 SCENE_SEED = 11

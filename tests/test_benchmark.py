@@ -8,10 +8,10 @@ import json
 import shutil
 
 import pytest
+from train_data import real_dir, scene_dir
 
 from sim2real.cli.main import main
 from sim2real.presets import METHOD_PRESETS
-from train_data import real_dir, scene_dir
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -11,8 +11,9 @@ from sim2real.inference.rows import PAPER_KS, position, positions, scalars, sequ
 from sim2real.metrics.consistency import flow_errors, orb_curve, orb_settings_for
 from sim2real.render.raycast import RayCaster
 from sim2real.render.warp import flow as gt_flow
+from sim2real.scene.conventions import DEFAULT_FLOW_BUDGET, DEFAULT_MAX_DEG_PER_FRAME
 from sim2real.scene.procedural import generate_scene
-from sim2real.scene.trajectory import DEFAULT_FLOW_BUDGET, DEFAULT_MAX_DEG_PER_FRAME, Trajectory, make_trajectory
+from sim2real.scene.trajectory import Trajectory, make_trajectory
 
 
 @pytest.fixture(scope="module")

@@ -3,8 +3,16 @@ import pytest
 
 from sim2real.errors import UserError
 from sim2real.scene.camera import (
-    Camera, intrinsics_from_fov, invert_rigid, look_at, pixel_centres, pixel_rays, project,
-    quaternion_to_rotation, rotation_to_quaternion, unproject_depth,
+    Camera,
+    intrinsics_from_fov,
+    invert_rigid,
+    look_at,
+    pixel_centres,
+    pixel_rays,
+    project,
+    quaternion_to_rotation,
+    rotation_to_quaternion,
+    unproject_depth,
 )
 
 

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 import torch
+from train_data import real_dir, scene_dir, tiny_config
 
 from sim2real.engine.checkpoint import load_checkpoint, save_checkpoint
 from sim2real.engine.trainer import Trainer
-from train_data import real_dir, scene_dir, tiny_config
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 

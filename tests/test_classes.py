@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 from PIL import Image
+from train_data import real_dir, tiny_config
 
 from sim2real.cli.main import main
 from sim2real.render.gbuffer import GBuffer
@@ -15,7 +16,6 @@ from sim2real.render.raycast import RayCaster
 from sim2real.scene.classes import ClassTable
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import Trajectory, make_trajectory, sample_poses
-from train_data import real_dir, tiny_config
 
 H, W = 48, 96
 TUMOUR_PALETTE = [255, 0, 255]

@@ -9,9 +9,9 @@ import signal
 
 import torch
 import torch.multiprocessing as mp
+from train_data import real_dir, scene_dir, tiny_config
 
 from sim2real.engine.checkpoint import load_checkpoint
-from train_data import real_dir, scene_dir, tiny_config
 
 ITERS = 3  # steps trained: rank 1 gets a SIGTERM during the last one (of ITERS + 3 configured)
 

@@ -8,13 +8,13 @@ import json
 
 import pytest
 import torch
-
 from eval_data import SCENE_SEED
+from train_data import real_dir, scene_dir
+
 from sim2real.cli.main import main
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import Trajectory, make_trajectory
-from train_data import real_dir, scene_dir
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -75,8 +75,7 @@ def test_train_resume_translate_evaluate_with_a_meta_default_device(tmp_path_fac
 
 def test_a_ref_rendered_from_the_sample_with_a_meta_default_device(procedural_caster, meta_default):
     """The GPU path's a_ref (data/tensors.py): every tensor it makes is on its inputs' device."""
-    from sim2real.data.tensors import complete_on_device, compact, view_inputs, widen
-
+    from sim2real.data.tensors import compact, complete_on_device, view_inputs, widen
     from sim2real.scene.trajectory import sample_poses
 
     g = procedural_caster.render(sample_poses(procedural_caster, 1, 32, 64, 75.0, seed=1)[0])

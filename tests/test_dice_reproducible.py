@@ -4,12 +4,12 @@ Dice, with a fixed number of steps; the cache key holds the library versions."""
 import numpy as np
 import pytest
 import torch
-
 from eval_data import labelled_real_dir
+
+from sim2real.data.real import load_rgb
 from sim2real.inference import dice as dice_mod
 from sim2real.inference.evaluate import EvalSettings
 from sim2real.inference.realimages import find_real, fit_image
-from sim2real.data.real import load_rgb
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -45,3 +45,15 @@ def test_cache_key_holds_library_versions_and_settings(tmp_path_factory, monkeyp
     monkeypatch.setattr(torch, "__version__", "0.0.1")
     assert dice_mod.library_versions()["torch"] == "0.0.1"
     assert dice_mod.cache_key(labelled, {"iterations": 12, "libraries": dice_mod.library_versions()}) != key
+
+
+def test_an_unstable_dice_is_the_mean_with_the_seeds_range_beside_it():
+    """0.93 / 0.86 / 0.90: mean 0.8966..., spread 0.07 > 0.05, so unstable, and the value is still the mean."""
+    from sim2real.inference.dice import summarise
+
+    d = summarise([0.93, 0.86, 0.90], 0.05)
+    assert d["value"] == pytest.approx((0.93 + 0.86 + 0.90) / 3) and d["spread"] == pytest.approx(0.07)
+    assert d["stable"] is False and "0.860-0.930" in d["reason"] and "the mean is shown" in d["reason"]
+    ok = summarise([0.95, 0.97], 0.05)
+    assert ok["stable"] and ok["reason"] is None and ok["value"] == pytest.approx(0.96)
+    assert summarise([], 0.05)["value"] is None

@@ -8,17 +8,25 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
 from eval_data import labelled_real_dir
+from train_data import scene_dir
+
 from sim2real.inference.anchors import Anchors
 from sim2real.inference.evaluate import EvalSettings
 from sim2real.inference.realimages import find_real
 from sim2real.inference.rows import ROWS
-from sim2real.inference.stages import (VIEW_INDEX0, ViewSet, assemble_metrics, consistency_stage, realism_stage,
-                                       report_stage, segmentation_stage, views_stage)
+from sim2real.inference.stages import (
+    VIEW_INDEX0,
+    ViewSet,
+    assemble_metrics,
+    consistency_stage,
+    realism_stage,
+    report_stage,
+    segmentation_stage,
+    views_stage,
+)
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.scene import Scene
-from train_data import scene_dir
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 SIZE = (64, 128, 75.0)

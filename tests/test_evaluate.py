@@ -6,13 +6,13 @@ import math
 
 import numpy as np
 import pytest
-
 from eval_data import SCENE_SEED, fake_fid_weights, labelled_real_dir, tiny_run
+from train_data import real_dir, scene_dir
+
 from sim2real.cli.main import main
 from sim2real.inference.evaluate import EvalSettings, evaluate, find_real
-from sim2real.inference.rows import pool_orb
 from sim2real.inference.report import svg_line_plot
-from train_data import real_dir, scene_dir
+from sim2real.inference.rows import pool_orb
 
 TOP_KEYS = {"format", "run", "settings", "inputs", "fid", "kid_mean", "kid_std", "fid_kid", "proxy", "dice", "dice_a_ref",
             "dice_real_train", "dice_real_held_out", "dice_ceiling", "dice_info", "of_error", "of_epe", "orb", "orb_curve",

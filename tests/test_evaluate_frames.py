@@ -4,6 +4,7 @@ full report; the ceiling's own frames, given as such a video, reproduce the ceil
 import json
 
 import pytest
+from train_data import real_dir, scene_dir
 
 from sim2real.cli.main import main
 from sim2real.fileio import atomic_write_image
@@ -11,7 +12,6 @@ from sim2real.inference.anchors import Anchors
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import make_trajectory
-from train_data import real_dir, scene_dir
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -8,8 +8,14 @@ from PIL import Image
 
 from sim2real.errors import UserError
 from sim2real.inference.export import (
-    FLO_MAGIC, depth_to_png16, export_ground_truth, read_depth_png, read_flo, read_tum_poses,
-    read_tum_poses_with_time, write_flo,
+    FLO_MAGIC,
+    depth_to_png16,
+    export_ground_truth,
+    read_depth_png,
+    read_flo,
+    read_tum_poses,
+    read_tum_poses_with_time,
+    write_flo,
 )
 from sim2real.render.warp import flow as gt_flow
 from sim2real.scene.camera import pixel_centres

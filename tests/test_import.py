@@ -6,8 +6,8 @@ import numpy as np
 import trimesh
 
 from sim2real.cli.main import main
-from sim2real.render.raycast import render_views
 from sim2real.render.gbuffer import GBuffer
+from sim2real.render.raycast import render_views
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import sample_poses
 

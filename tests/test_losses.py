@@ -7,8 +7,16 @@ import pytest
 import torch
 
 from sim2real.losses import (
-    angle_loss, check_ssim_size, grey, l1, lsgan_dis_loss, lsgan_gen_loss, masked_l1_loss, ms_ssim_loss,
-    view_consistency, warp_backward,
+    angle_loss,
+    check_ssim_size,
+    grey,
+    l1,
+    lsgan_dis_loss,
+    lsgan_gen_loss,
+    masked_l1_loss,
+    ms_ssim_loss,
+    view_consistency,
+    warp_backward,
 )
 
 

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from toy_methods import ToyConfig, toy_methods  # noqa: F401  (fixture)
+from train_data import resume_run, tiny_config, train_logged
 
 from sim2real.config import override, save_yaml, to_dict
 from sim2real.errors import UserError
 from sim2real.methods import get_method
 from sim2real.presets import METHOD_PRESETS, config_from_dict, load_config, method_config, preset
-from toy_methods import ToyConfig, toy_methods  # noqa: F401  (fixture)
-from train_data import resume_run, tiny_config, train_logged
 
 
 @pytest.mark.parametrize("name", sorted(METHOD_PRESETS))
@@ -145,10 +145,10 @@ def test_inference_equals_the_training_forward_pass(name, request, tmp_path, pro
 def test_init_from_carries_the_networks_to_new_scenes(train_inputs, tmp_path, capsys):
     """``--init-from``: a trained run's translator and discriminators, fresh textures for other scenes."""
     import torch
+    from train_data import scene_dir
 
     from sim2real.cli.main import main
     from sim2real.engine.checkpoint import load_checkpoint
-    from train_data import scene_dir
 
     scenes, real = train_inputs
     trainer, _ = train_logged(tiny_config(iterations=2, checkpoint_every=2, image_every=100), scenes, real,

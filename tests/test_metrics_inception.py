@@ -7,13 +7,7 @@ import torch
 from torch import nn
 
 from sim2real.errors import UserError
-from sim2real.metrics.inception import (
-    FID_WEIGHTS_ENV,
-    FIDInceptionV3,
-    _avg3,
-    load_fid_inception,
-    resolve_fid_weights,
-)
+from sim2real.metrics.inception import FID_WEIGHTS_ENV, FIDInceptionV3, _avg3, load_fid_inception, resolve_fid_weights
 
 
 def _randomised_net(seed: int) -> FIDInceptionV3:

@@ -3,15 +3,22 @@
 
 import numpy as np
 import pytest
+from train_data import scene_dir
 
 from sim2real.inference.anchors import Anchors
 from sim2real.metrics.consistency import orb_settings_for
-from sim2real.metrics.odometry import (direction_error_deg, ground_truth_motion, odometry, odometry_orb, pair_starts,
-                                       rotation_error_deg, summarise)
+from sim2real.metrics.odometry import (
+    direction_error_deg,
+    ground_truth_motion,
+    odometry,
+    odometry_orb,
+    pair_starts,
+    rotation_error_deg,
+    summarise,
+)
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import make_trajectory
-from train_data import scene_dir
 
 
 def rot_z(deg):

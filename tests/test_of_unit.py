@@ -9,13 +9,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from train_data import tiny_config
 
 from sim2real.config import override
-from sim2real.presets import preset
-from sim2real.validation import validate
 from sim2real.errors import UserError
 from sim2real.methods import get_method
-from train_data import tiny_config
+from sim2real.presets import preset
+from sim2real.validation import validate
 
 H, W = 40, 40  # MS-SSIM at the tiny window needs a side > 32
 
@@ -215,10 +215,10 @@ def _train(tmp_path, name, inputs, iterations, **changes):
 
 
 def test_trains_resumes_and_translates_a_six_frame_sequence(video_train_inputs, tmp_path, procedural_caster):
-    from sim2real.presets import config_from_dict
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.translate import load_run
+    from sim2real.presets import config_from_dict
 
     run, seen = _train(tmp_path, "of_unit", video_train_inputs, 2, method__vc_start=0)
     assert seen[0]["gen/vc"] == 0.0 and seen[1]["gen/vc"] > 0.0  # step 0: a first frame; step 1: the chain

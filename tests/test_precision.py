@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 import torch
 from torch.utils.data import default_collate
+from train_data import tiny_config
 
 from sim2real.engine import precision
 from sim2real.engine.trainer import Trainer
@@ -14,7 +15,6 @@ from sim2real.losses.ssim import ms_ssim_loss
 from sim2real.losses.structure import edge_recall_loss
 from sim2real.methods import get_method
 from sim2real.presets import METHOD_PRESETS
-from train_data import tiny_config
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -3,7 +3,7 @@ import pytest
 
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.raycast import RayCaster
-from sim2real.scene.camera import Camera, intrinsics_from_fov, look_at, pixel_rays, project, pixel_centres
+from sim2real.scene.camera import Camera, intrinsics_from_fov, look_at, pixel_centres, pixel_rays, project
 
 
 @pytest.fixture(scope="module")

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 from torch import nn
+from train_data import real_video_dir, resume_run, tiny_config, train_logged, weighted_total
 
-from sim2real.validation import validate
 from sim2real.errors import UserError
 from sim2real.methods import get_method
-from train_data import real_video_dir, resume_run, tiny_config, train_logged, weighted_total
+from sim2real.validation import validate
 
 
 @pytest.fixture(autouse=True)

@@ -4,11 +4,11 @@ continuing its state; a time-independent one may reuse its forward frames (and e
 from __future__ import annotations
 
 import pytest
-
-from sim2real.presets import preset
-from sim2real.inference.evaluate import EvalSettings, evaluate
 from toy_methods import DriftConfig, ToyConfig, toy_methods  # noqa: F401  (fixture)
 from train_data import real_dir, scene_dir
+
+from sim2real.inference.evaluate import EvalSettings, evaluate
+from sim2real.presets import preset
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

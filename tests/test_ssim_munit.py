@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from train_data import resume_run, tiny_config, train_logged, weighted_total
 
 from sim2real.config import GeneratorConfig
-from sim2real.validation import validate
 from sim2real.errors import UserError
 from sim2real.methods import get_method
 from sim2real.models.style import MLP, AdaIN, AdaINDecoder, StyleEncoder
-from train_data import resume_run, tiny_config, train_logged, weighted_total
+from sim2real.validation import validate
 
 
 @pytest.fixture(autouse=True)

@@ -8,9 +8,9 @@ import torch
 from scipy import ndimage
 
 from sim2real.config import LossConfig, TrainConfig, override
-from sim2real.validation import validate
 from sim2real.errors import UserError
 from sim2real.losses import edge_recall_loss, ms_ssim_loss, structure_ab_loss
+from sim2real.validation import validate
 
 
 def image(grey_values) -> torch.Tensor:

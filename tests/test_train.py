@@ -10,15 +10,15 @@ import pytest
 import torch
 from PIL import Image
 from torch.utils.data import default_collate
+from train_data import real_dir, scene_dir, tiny_config, views_dir
 
 from sim2real.data.datasets import PAIR_TRIES, TrainPairs, resolve_scenes
 from sim2real.data.real import RealImages, random_resized_crop, to_rgb
-from sim2real.presets import METHOD_PRESETS
 from sim2real.engine.trainer import Trainer
 from sim2real.errors import UserError
+from sim2real.presets import METHOD_PRESETS
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.warp import correspondences
-from train_data import real_dir, scene_dir, tiny_config, views_dir
 
 EVAL_STEPS = (1000, 1001, 1002)  # held-out samples: never drawn by a 10-iteration run
 

@@ -5,9 +5,9 @@ import shutil
 import pytest
 import torch
 import yaml
+from train_data import real_dir, scene_dir, views_dir
 
 from sim2real.cli.main import main
-from train_data import real_dir, scene_dir, views_dir
 
 
 @pytest.fixture(scope="module")

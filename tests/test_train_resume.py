@@ -17,9 +17,9 @@ import pytest
 import yaml
 
 from sim2real.cli.main import main
-from sim2real.presets import preset
 from sim2real.engine.checkpoint import load_checkpoint
 from sim2real.engine.runlock import LOCK_NAME
+from sim2real.presets import preset
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 

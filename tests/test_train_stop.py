@@ -12,11 +12,11 @@ import time
 from pathlib import Path
 
 import pytest
+from train_data import tiny_config
 
 from sim2real.cli.main import main
 from sim2real.engine import checkpoint as ckpt
 from sim2real.engine.trainer import Trainer
-from train_data import tiny_config
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 # the CLI with default dispositions of both signals (a shell's background job inherits SIGINT ignored)

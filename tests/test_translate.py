@@ -4,18 +4,18 @@ import json
 import shutil
 
 import numpy as np
-import torch
 import pytest
-from PIL import Image
-
+import torch
 from eval_data import SCENE_SEED, tiny_run
+from PIL import Image
+from train_data import scene_dir, views_dir
+
 from sim2real.cli.main import main
 from sim2real.inference.translate import load_run
 from sim2real.inference.video import read_video
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import Trajectory, make_trajectory
-from train_data import scene_dir, views_dir
 
 H, W = 64, 128
 

@@ -4,14 +4,13 @@ import math
 
 import pytest
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from sim2real.config import DiscriminatorConfig, GeneratorConfig, TrainConfig
-from sim2real.presets import preset
 from sim2real.models import MsImageDis, Translator
-import torch.nn.functional as F
-
 from sim2real.models.layers import LayerNorm, UpConv2dBlock
+from sim2real.presets import preset
 
 
 def _tiny(content_channels):

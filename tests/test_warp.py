@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
 import trimesh
+from conftest import plane_mesh
 
 from sim2real.render.raycast import RayCaster
 from sim2real.render.warp import correspondences, flow, warp_image
 from sim2real.scene.camera import Camera, intrinsics_from_fov, look_at, pixel_centres
 from sim2real.scene.scene import CameraRegion, Scene, SceneObject
-from conftest import plane_mesh
 
 BOX_LO, BOX_HI = np.array([-6.0, -6.0, 20.0]), np.array([6.0, 6.0, 30.0])
 

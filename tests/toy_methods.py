@@ -18,10 +18,8 @@ import torch
 from torch import nn
 
 from sim2real.config import MethodConfig
-from sim2real.methods.base import METHOD_CONFIGS, register_method_config
 from sim2real.methods import METHODS
-from sim2real.methods.base import Method, OptimGroup, SequenceTranslator, Stage
-
+from sim2real.methods.base import METHOD_CONFIGS, Method, OptimGroup, SequenceTranslator, Stage, register_method_config
 
 _VOLUME = torch.rand(1, 1, 32, 32, 32, generator=torch.Generator().manual_seed(0)) * 2 - 1
 

@@ -106,9 +106,9 @@ def weighted_total(trainer, values: dict, step: int) -> float:
 def resume_run(run, iterations: int):
     """Resume ``run`` from its last checkpoint with its own saved configuration until ``iterations``;
     returns the trainer (``.step`` is where it ended) and the step it resumed at."""
-    from sim2real.presets import config_from_dict
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import Trainer
+    from sim2real.presets import config_from_dict
 
     last = Path(run) / "checkpoints" / "last.pt"
     cfg = config_from_dict(load_checkpoint(last)["config"])

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+from PIL import Image
 
 from sim2real.errors import UserError
 
@@ -109,8 +110,6 @@ def fsync_files(paths) -> None:
 
 def atomic_write_image(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write an 8- or 16-bit image (H x W, H x W x 3 RGB or H x W x 4 RGBA) as PNG."""
-    from PIL import Image
-
     buf = io.BytesIO()
     Image.fromarray(image).save(buf, format="PNG")
     atomic_write_bytes(path, buf.getvalue())

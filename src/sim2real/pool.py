@@ -24,8 +24,11 @@ stage that renders many views uses :class:`WorkerPool`::
 from __future__ import annotations
 
 import collections
+import multiprocessing as mp
 import pickle
 from typing import Any, Callable, Iterable, Iterator
+
+from sim2real.threads import single_thread_worker
 
 _NO_STATE = object()
 _state: Any = _NO_STATE
@@ -35,7 +38,6 @@ _setup_error: BaseException | None = None
 
 def _init(payload: bytes) -> None:
     global _state, _setup_error
-    from sim2real.threads import single_thread_worker
 
     single_thread_worker()
     try:
@@ -64,7 +66,6 @@ class WorkerPool:
 
     def __enter__(self) -> "WorkerPool":
         if self.workers > 1:
-            import multiprocessing as mp
 
             # The workers start now (imports, setup) while the caller prepares its jobs. ``setup``
             # and its arguments travel pre-pickled: unpickled inside the start-up message, their

@@ -27,8 +27,16 @@ import dataclasses
 from collections.abc import Callable, Sequence
 
 from sim2real.config import (
-    DataConfig, DiscriminatorConfig, GeneratorConfig, LossConfig, MethodConfig, OptimConfig, TrainConfig, from_dict,
-    override, read_yaml,
+    DataConfig,
+    DiscriminatorConfig,
+    GeneratorConfig,
+    LossConfig,
+    MethodConfig,
+    OptimConfig,
+    TrainConfig,
+    from_dict,
+    override,
+    read_yaml,
 )
 from sim2real.errors import UserError
 

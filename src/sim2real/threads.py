@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
+
+from threadpoolctl import threadpool_limits
 
 
 def usable_cores() -> int:
@@ -58,10 +61,6 @@ def single_thread_worker(*_args) -> None:
     when this runs, so threadpoolctl finds no OpenBLAS to limit, and numpy loaded by the first job
     started two threads per worker; ``sim2real render`` then ran at 16 views/s instead of 34
     (benchmarks/bench_raycast.py, 2-core dev machine)."""
-    import sys
-
-    from threadpoolctl import threadpool_limits
-
     for var in _THREAD_VARS:
         os.environ[var] = "1"
     threadpool_limits(limits=1)
@@ -74,7 +73,8 @@ def one_torch_thread():
     """torch on one CPU thread inside the block, then as before: a reduction's order, and so its
     rounding, depends on the thread count, and small networks gain nothing from a second thread
     on a busy machine (two threads spinning against other jobs ran 10x slower on the dev machine)."""
-    import torch  # this module is imported by torch-free worker processes
+    # imported here, not at the top: torch-free worker processes import this module
+    import torch
 
     before = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from sim2real.scene.conventions import DEFAULT_FLOW_BUDGET, DEFAULT_MAX_DEG_PER_FRAME, LOOKS
+
 
 def positive_int(text: str) -> int:
     try:
@@ -47,8 +49,6 @@ def non_negative_float(text: str) -> float:
 
 def add_motion_args(p) -> None:
     """The motion budget of generated test paths (:func:`sim2real.scene.trajectory.make_trajectory`)."""
-    from sim2real.scene.trajectory import DEFAULT_FLOW_BUDGET, DEFAULT_MAX_DEG_PER_FRAME, LOOKS
-
     p.add_argument("--flow-budget", type=non_negative_float, default=DEFAULT_FLOW_BUDGET, metavar="F",
                    help=f"median ground-truth flow per frame, fraction of the width (default {DEFAULT_FLOW_BUDGET:g}; "
                         "0 = unbounded)")

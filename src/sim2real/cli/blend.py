@@ -13,6 +13,7 @@ def register(sub) -> None:
 
 
 def _setup(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.scene.blend import BPY_REQUIREMENT, setup, venv_dir
 
     print(f"installing {BPY_REQUIREMENT} into {venv_dir()} (set SIM2REAL_BLEND_VENV for another place)")

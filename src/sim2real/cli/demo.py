@@ -145,7 +145,9 @@ def run(args: argparse.Namespace) -> int:
         "report": "evaluation/report.html",
         "figure": "side_by_side.png",
     })
-    shown = {"Dice": metrics.get("dice"), "OF error (px)": metrics.get("of_error"), "FID": metrics.get("fid")}
+    c2st = (metrics.get("realism", {}).get("c2st") or {}).get("rows", {})
+    shown = {"Dice": metrics.get("dice"), "OF error (px)": metrics.get("of_error"),
+             "C2ST AUC vs real (0.5 = indistinguishable)": c2st.get("model"), "FID": metrics.get("fid")}
     print(f"demo written to {out}: video/video.mp4, video/ground_truth/, evaluation/report.html, "
           f"side_by_side.png "
           f"({steps} training steps; " + ", ".join(f"{k} {'n/a' if v is None else f'{v:.3g}'}" for k, v in shown.items())

@@ -71,6 +71,7 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.errors import UserError
     from sim2real.inference.evaluate import EvalSettings, evaluate
 

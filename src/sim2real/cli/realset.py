@@ -65,6 +65,7 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.footage.build import Settings, build_realset  # only this command needs PyAV and OpenCV
 
     settings = Settings(height=args.height, fps=args.fps, max_frames=args.max_frames, held_out=args.held_out,

@@ -28,6 +28,7 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     import numpy as np
 
     from sim2real.data.views import write_views_manifest

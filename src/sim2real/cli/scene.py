@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 
 from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
-from sim2real.errors import UserError
 from sim2real.scene.conventions import DEFAULT_CREASE_DEG, UNITS
 
 
@@ -74,6 +73,7 @@ def register(sub) -> None:
 
 
 def _generate(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.scene.procedural import generate_scene
 
     scene = generate_scene(args.seed, args.name)
@@ -83,6 +83,7 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _import(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.scene.importer import import_scene
 
     scene = import_scene(args)
@@ -94,6 +95,7 @@ def _import(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     import numpy as np
 
     from sim2real.render.raycast import RayCaster, check_camera_region
@@ -115,6 +117,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _preview(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.scene.preview import contact_sheet
 
     path = contact_sheet(args.scene, args.out, args.views, args.frames, args.height, args.width, args.fov, args.seed)
@@ -123,6 +126,7 @@ def _preview(args: argparse.Namespace) -> int:
 
 
 def _trajectory(args: argparse.Namespace) -> int:
+    # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.render.raycast import RayCaster, check_camera_region
     from sim2real.scene.camera import check_size
     from sim2real.scene.scene import Scene

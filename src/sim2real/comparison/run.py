@@ -42,9 +42,10 @@ from sim2real.comparison.figures import side_by_side, write_report
 from sim2real.comparison.table import build_table, write_table
 from sim2real.config import override, to_dict
 from sim2real.data.embedded import make_embedded_data
+from sim2real.data.real import RealImages, RealSequences
 from sim2real.engine.trainer import Trainer, resolve_device
 from sim2real.errors import UserError
-from sim2real.fileio import atomic_write_json, atomic_write_json as write
+from sim2real.fileio import atomic_write_json, atomic_write_json as write, prepare_output_dir
 from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate
 from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
 from sim2real.methods import get_method
@@ -134,7 +135,6 @@ def check(s: BenchmarkSettings, out: Path, scenes, real, trajectories, resume: b
     fid_weights_status(fid_weights)
     video = [m for m, cfg in configs.items() if _uses_sequences(cfg)]
     if real is not None:
-        from sim2real.data.real import RealImages, RealSequences
 
         RealImages(real)
         if video:
@@ -155,7 +155,6 @@ def check(s: BenchmarkSettings, out: Path, scenes, real, trajectories, resume: b
         if saved.get("settings") != _settings_json(s, scenes, real, trajectories):
             raise UserError(f"--resume: the flags differ from the benchmark's own ({manifest}); give the same flags")
     else:
-        from sim2real.fileio import prepare_output_dir
 
         prepare_output_dir(out)
     return configs

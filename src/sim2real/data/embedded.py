@@ -5,6 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sim2real.realdomain.writer import make_real_domain
+from sim2real.scene.procedural import generate_scene
+
 REAL_SEED_OFFSET = 1000
 """Real-domain scenes use seeds S + 1000, ...: never the simulated scenes' seeds."""
 
@@ -17,9 +20,6 @@ def make_embedded_data(out: Path, seed: int, scenes: int, real_images: int, heig
     ``sequence_frames`` frames, for the video methods) under ``out/real``, rendered from two scenes
     of other seeds (the domains are unpaired). Returns (simulated scene folders, real folder).
     ``check(scenes)`` sees the simulated scenes before anything is written (it may raise)."""
-    from sim2real.realdomain.writer import make_real_domain
-    from sim2real.scene.procedural import generate_scene
-
     say(f"simulated scenes ({scenes})")
     sim = [generate_scene(seed + k) for k in range(scenes)]
     if check is not None:

@@ -40,6 +40,7 @@ from __future__ import annotations
 import os
 import sys
 from collections import OrderedDict
+from pathlib import Path
 
 import numpy as np
 import torch

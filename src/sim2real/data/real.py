@@ -14,6 +14,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from sim2real.data.cover import ValidArea, random_cover_crops
 from sim2real.data.real_manifest import is_realset, load_mask, mask_file, read_manifest
@@ -37,8 +38,6 @@ def list_images(folder: str | os.PathLike) -> list[Path]:
 def verify_images(files: list[Path]) -> None:
     """Open every file's header and check its structure (PIL ``verify``: no full decode);
     the first unreadable one is named in a UserError."""
-    from PIL import Image
-
     for path in files:
         try:
             with Image.open(path) as im:
@@ -49,8 +48,6 @@ def verify_images(files: list[Path]) -> None:
 
 def load_rgb(path: str | os.PathLike) -> np.ndarray:
     """Decode an image as uint8 (H, W, 3) RGB, converting grey, palette and alpha modes."""
-    from PIL import Image
-
     try:
         with Image.open(path) as im:
             im.load()

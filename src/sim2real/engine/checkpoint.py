@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import os
 import random
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -85,7 +86,6 @@ def keep_copy(path: Path, step: int) -> Path:
     try:
         os.link(path, dst)
     except OSError:
-        import shutil
 
         with atomic_path(dst) as tmp:
             shutil.copyfile(path, tmp)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import torch
 import torch.distributed as dist
 from torch import nn
+from torch.nn.parallel import DistributedDataParallel as DDP
 
 from sim2real.errors import UserError
 
@@ -119,7 +120,6 @@ def wrap(module: nn.Module, info: DistInfo, device: torch.device, find_unused: b
     """``module`` itself in one process, else a DistributedDataParallel wrapper around it."""
     if not info.enabled:
         return module
-    from torch.nn.parallel import DistributedDataParallel as DDP
 
     ids = [device.index] if device.type == "cuda" else None
     return DDP(module, device_ids=ids, find_unused_parameters=find_unused)

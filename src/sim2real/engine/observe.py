@@ -21,16 +21,17 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.utils.tensorboard import SummaryWriter
+from tqdm import tqdm
 
-from sim2real.fileio import atomic_write_image
+from sim2real.fileio import atomic_write_image, atomic_write_text
+from sim2real.grid import tile
 
 GAP = 2
 
 
 def make_grid(rows: list[list[torch.Tensor]]) -> np.ndarray:
     """Rows of (3, H, W) images in [-1, 1] -> uint8 (H', W', 3) with white gaps; short rows are padded."""
-    from sim2real.grid import tile
-
     def u8(img: torch.Tensor) -> np.ndarray:
         return ((img.detach().float().cpu().clamp(-1, 1) + 1) * 127.5 + 0.5).to(torch.uint8).permute(1, 2, 0).numpy()
 
@@ -49,8 +50,6 @@ class Observer:
         self._n0 = start
         if not enabled:
             return
-        from torch.utils.tensorboard import SummaryWriter
-        from tqdm import tqdm
 
         # after a resume, drop what a killed run logged beyond the checkpoint (TensorBoard: purge_step)
         self.writer = SummaryWriter(str(self.out / "tb"), purge_step=start if start > 0 else None)
@@ -59,8 +58,6 @@ class Observer:
                         disable=not progress, smoothing=0.1)
 
     def _truncate_metrics(self, start: int) -> None:
-        from sim2real.fileio import atomic_write_text
-
         path = self.out / "metrics.jsonl"
         if start <= 0 or not path.is_file():
             return

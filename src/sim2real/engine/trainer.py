@@ -49,20 +49,21 @@ from typing import Callable
 import numpy as np
 import torch
 
-from sim2real.config import TrainConfig, to_dict
-from sim2real.validation import validate
+from sim2real.config import TrainConfig, save_yaml, to_dict
 from sim2real.data.datasets import StepSampler, make_dataset, resolve_scenes
 from sim2real.data.real import INDEX as REAL_INDEX, RealImages
 from sim2real.data.shm import loader_workers_for_shm
 from sim2real.data.tensors import complete_on_device, widen
-from sim2real.engine import checkpoint as ckpt
-from sim2real.engine import distributed, precision
+from sim2real.engine import checkpoint as ckpt, distributed, precision
 from sim2real.engine.observe import Observer
 from sim2real.engine.runlock import LOCK_NAME, RunLock, close_inherited
 from sim2real.engine.stop import StopSignals, ignore_in_worker
 from sim2real.errors import UserError
+from sim2real.fileio import prepare_output_dir
 from sim2real.methods import get_method
 from sim2real.threads import single_thread_worker, worker_count
+from sim2real.validation import validate
+
 
 def resolve_device(name: str, local_rank: int = 0) -> torch.device:
     if name not in ("auto", "cpu", "cuda"):
@@ -215,8 +216,6 @@ class Trainer:
         """Lock the run folder (rank 0). A fresh run needs it empty (checked before the lock is
         created in it, and again under the lock); a resumed run needs its checkpoint unchanged
         since it was read (another process may have written it in between)."""
-        from sim2real.fileio import prepare_output_dir
-
         if state is None:
             prepare_output_dir(self.out)
         else:  # resuming into another folder (Trainer(resume=...) from code) starts it
@@ -233,8 +232,6 @@ class Trainer:
             raise
 
     def _build(self, state: dict | None, resume, progress: bool, init_state: dict | None = None) -> None:
-        from sim2real.config import save_yaml
-
         cfg = self.cfg
         # networks, textures, optimisers (same seed on every rank; DDP also broadcasts rank 0's)
         random.seed(cfg.seed)

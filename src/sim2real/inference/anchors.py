@@ -21,11 +21,13 @@ all that "a new appearance every frame" means to the metrics.
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
+from sim2real.fileio import read_json_or_none
+from sim2real.realdomain import FORMAT, Appearance, RenderOptions, SceneMaterial, derive_seed, render_frame
 from sim2real.render.gbuffer import GBuffer
-from sim2real.realdomain import Appearance, RenderOptions, SceneMaterial, derive_seed, render_frame
 
 _CEILING, _FLOOR, _NOISE = 31, 32, 33  # seed tags
 
@@ -63,11 +65,6 @@ class Anchors:
 def stand_in_options(real_root):
     """(RenderOptions, is_stand_in): the camera settings of a stand-in real folder (its
     ``manifest.json``), or the defaults and False for any other folder."""
-    from pathlib import Path
-
-    from sim2real.fileio import read_json_or_none
-    from sim2real.realdomain import FORMAT
-
     for d in (Path(real_root), Path(real_root).parent):
         data = read_json_or_none(d / "manifest.json")
         if data is not None and data.get("format") == FORMAT and isinstance(data.get("render"), dict):

@@ -13,7 +13,8 @@ Protocol (every number is an :class:`~sim2real.inference.evaluate.EvalSettings` 
   the same library versions give the same weights on every machine.
 * A set of frames is scored by every segmenter. Its Dice is the mean over the seeds, reported
   with the per-seed values and their spread (max - min). A spread above ``seg_max_spread``
-  (0.05) makes the figure **unstable**: the value is ``None`` and the reason gives the range.
+  (0.05) marks the figure **unstable**: the mean is still the value, and the reason beside it
+  gives the seeds' range, so a reader sees both the number and how far to trust it.
 * Trained segmenters are cached under ``$SIM2REAL_CACHE`` (default ``~/.cache/sim2real``) in
   ``segmenters/KEY/``, KEY = SHA-256 of the labelled files' contents, every setting that
   changes training and the versions of torch, numpy and Pillow (which decode, resize and train),
@@ -24,13 +25,20 @@ Protocol (every number is an :class:`~sim2real.inference.evaluate.EvalSettings` 
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import PIL
+import torch
 
+from sim2real.fileio import atomic_write_bytes, atomic_write_json
+from sim2real.inference.realimages import fit_image, load_segmentation_set
+from sim2real.metrics.realism import dice as dice_score
+from sim2real.metrics.segmenter import LiverUNet, predict, train_segmenter
 from sim2real.threads import one_torch_thread
 
 CACHE_FORMAT = "sim2real-segmenter-cache/2"
@@ -42,9 +50,6 @@ def cache_root() -> Path:
 
 def library_versions() -> dict:
     """The versions that change a trained segmenter's weights."""
-    import PIL
-    import torch
-
     return {"torch": torch.__version__, "numpy": np.__version__, "pillow": PIL.__version__}
 
 
@@ -71,13 +76,6 @@ def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool = True, say=print) -> tuple[list, dict]:
     """Train (or load from the cache) ``s.seg_seeds`` segmenters; returns (models, info)."""
-    import torch
-
-    from sim2real.fileio import atomic_write_bytes, atomic_write_json
-    from sim2real.inference.realimages import load_segmentation_set
-    from sim2real.metrics.realism import dice as dice_score
-    from sim2real.metrics.segmenter import LiverUNet, predict, train_segmenter
-
     spec = {"height": s.seg_height, "width": s.seg_width, "iterations": s.seg_iterations, "batch": s.seg_batch,
             "holdout": s.seg_holdout, "split_seed": s.seed, "crops": True, "flips": True, "base_channels": 16,
             "depth": 3, "check_every": s.seg_check_every, "early_stop": False, "device": "cpu", "threads": 1,
@@ -110,7 +108,6 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
                                         progress=progress, early_stop=False)
             model = model.to(device)
             meta = {"seed": seed, "history": hist, "steps": s.seg_iterations}
-            import io
 
             buf = io.BytesIO()
             torch.save({"state_dict": {k2: v.cpu() for k2, v in model.state_dict().items()}, "meta": json.dumps(meta)}, buf)
@@ -131,24 +128,20 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
 
 
 def summarise(values: Sequence[float], max_spread: float) -> dict:
-    """{"value": mean or None when unstable, "per_seed", "spread", "stable", "reason"}."""
+    """{"value": the mean over the seeds (None without any), "mean", "per_seed", "spread", "stable",
+    "reason": None when stable, else the seeds' range}."""
     v = [float(a) for a in values]
     spread = max(v) - min(v) if v else None
     stable = spread is not None and spread <= max_spread
-    return {"value": float(np.mean(v)) if stable else None, "mean": float(np.mean(v)) if v else None,
+    return {"value": float(np.mean(v)) if v else None, "mean": float(np.mean(v)) if v else None,
             "per_seed": v, "spread": spread, "stable": stable,
             "reason": None if stable else (f"unstable over segmenter seeds: {min(v):.3f}-{max(v):.3f} "
-                                           f"(spread {spread:.3f} > {max_spread:g})" if v else "no segmenter")}
+                                           f"(spread {spread:.3f} > {max_spread:g}); the mean is shown"
+                                           if v else "no segmenter")}
 
 
 def dice_of(models: list, frames: Sequence[np.ndarray], gt: np.ndarray, s) -> dict:
     """:func:`summarise` of the Dice of every segmenter on ``frames`` (uint8 RGB at any size)
     against ``gt`` (N, h, w) bool at the segmenter's size."""
-    import torch
-
-    from sim2real.inference.realimages import fit_image
-    from sim2real.metrics.realism import dice as dice_score
-    from sim2real.metrics.segmenter import predict
-
     x = torch.from_numpy(np.stack([fit_image(f, s.seg_height, s.seg_width) for f in frames])).permute(0, 3, 1, 2)
     return summarise([dice_score(predict(m, x.contiguous()), gt) for m in models], s.seg_max_spread)

@@ -50,8 +50,16 @@ from sim2real.fileio import prepare_output_dir
 from sim2real.inference.anchors import Anchors, stand_in_options
 from sim2real.inference.realimages import find_real, fit_image
 from sim2real.inference.rows import ROWS
-from sim2real.inference.stages import (assemble_metrics, consistency_stage, realism_stage, report_stage,
-                                       segmentation_stage, stderr_say, timed, views_stage)
+from sim2real.inference.stages import (
+    assemble_metrics,
+    consistency_stage,
+    realism_stage,
+    report_stage,
+    segmentation_stage,
+    stderr_say,
+    timed,
+    views_stage,
+)
 from sim2real.inference.translate import load_run
 from sim2real.metrics.inception import load_fid_inception
 from sim2real.metrics.realism import fid_weights_status

@@ -33,14 +33,19 @@ import io
 import os
 import shutil
 import struct
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Sequence
 
+import cv2
 import numpy as np
+from PIL import Image
 
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_path, atomic_write_bytes, atomic_write_image, atomic_write_json, atomic_write_text
 from sim2real.render.gbuffer import GBuffer
+from sim2real.render.reference import reference_rendering, to_uint8
+from sim2real.render.warp import flow as gt_flow
 from sim2real.scene.camera import invert_rigid, rotation_to_quaternion
 from sim2real.scene.classes import LABEL_BACKGROUND, ClassTable
 from sim2real.scene.tum import read_tum
@@ -86,8 +91,6 @@ def depth_to_png16(depth_mm: np.ndarray, scale: float) -> np.ndarray:
 
 
 def _png16_bytes(image: np.ndarray) -> bytes:
-    import cv2
-
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(image, dtype=np.uint16), [cv2.IMWRITE_PNG_COMPRESSION, 3])
     if not ok:  # pragma: no cover
         raise RuntimeError("PNG encoding failed")
@@ -97,8 +100,6 @@ def _png16_bytes(image: np.ndarray) -> bytes:
 def read_depth_png(path: str | os.PathLike, scale: float = DEPTH_PNG_SCALE) -> np.ndarray:
     """A 16-bit depth PNG -> float32 z-depth in mm (0 = no surface). ``scale`` is the PNG value per
     millimetre: 10 for ``depth/`` (default), 5 for ``tum/depth/`` (5000 per metre)."""
-    from PIL import Image
-
     try:
         with Image.open(path) as im:
             a = np.array(im)
@@ -247,9 +248,6 @@ def export_ground_truth(
     of each frame, so that the TUM folder is complete. Returns the manifest (also written to
     ``ground_truth.json``, last).
     """
-    from sim2real.render.reference import reference_rendering, to_uint8
-    from sim2real.render.warp import flow as gt_flow
-
     gbuffers = list(gbuffers)
     n = len(gbuffers)
     if n == 0:
@@ -308,7 +306,6 @@ def export_ground_truth(
         for i in range(n):
             write_frame(i)
     else:
-        from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(workers) as pool:
             for _ in pool.map(write_frame, range(n)):

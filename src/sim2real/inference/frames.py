@@ -11,7 +11,9 @@ import os
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
+from sim2real.pool import WorkerPool
 from sim2real.render.gbuffer import GBuffer
+from sim2real.render.raycast import caster_setup, render_camera
 from sim2real.threads import usable_cores, worker_count
 
 POOL_MIN_RAYS = 32 * 256 * 512
@@ -38,9 +40,6 @@ def iter_gbuffers(scene_dir: str | os.PathLike, cameras: Sequence, workers: int 
     two chunks (``chunk`` frames, at least two per worker) are rendered ahead of the caller, so
     memory stays bounded however long the trajectory. ``None`` picks :func:`auto_workers`.
     """
-    from sim2real.pool import WorkerPool
-    from sim2real.render.raycast import caster_setup, render_camera
-
     cameras = list(cameras)
     workers = auto_workers(cameras) if workers is None else max(1, int(workers))
     if len(cameras) <= 1:

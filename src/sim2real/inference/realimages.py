@@ -9,8 +9,11 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import torch
+from PIL import Image
 
 from sim2real.data.cover import fit_image
+from sim2real.data.real import list_images, load_rgb
 from sim2real.errors import UserError
 
 
@@ -34,8 +37,6 @@ def find_real(directory: str | os.PathLike) -> RealSet:
     ``images/REL.ext`` may have ``labels/REL.png``. Otherwise every PNG/JPEG under ``DIR`` is an
     image (a ``DIR/labels/`` folder is skipped and read as above).
     """
-    from sim2real.data.real import list_images
-
     root = Path(directory)
     if not root.is_dir():
         raise UserError(f"real image folder {root} does not exist or is not a directory")
@@ -52,8 +53,6 @@ def find_real(directory: str | os.PathLike) -> RealSet:
 
 
 def load_label(path: Path) -> np.ndarray:
-    from PIL import Image
-
     try:
         with Image.open(path) as im:
             a = np.asarray(im)
@@ -67,10 +66,6 @@ def load_label(path: Path) -> np.ndarray:
 def load_segmentation_set(labelled: Sequence[tuple[Path, Path]], height: int, width: int):
     """Labelled real images -> (images uint8 (N, 3, h, w), liver masks bool (N, h, w)) at the
     segmenter's size (images bilinear, labels nearest; cover + centre crop)."""
-    import torch
-
-    from sim2real.data.real import load_rgb
-
     xs, ys = [], []
     for ip, lp in labelled:
         img, lab = load_rgb(ip), load_label(lp)
@@ -83,8 +78,6 @@ def load_segmentation_set(labelled: Sequence[tuple[Path, Path]], height: int, wi
 
 
 def to_nchw(frames: Sequence[np.ndarray]):
-    import torch
-
     return torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous()
 
 

@@ -16,7 +16,14 @@ from typing import Sequence
 
 import numpy as np
 
-from sim2real.metrics.consistency import PAPER_ORB_KS as PAPER_KS
+from sim2real.metrics.consistency import (
+    PAPER_ORB_KS as PAPER_KS,
+    farneback_flow,
+    flow_errors,
+    orb_curve,
+    revisit_of,
+    revisit_orb,
+)
 
 ROWS = ("model", "ceiling", "floor", "a_ref")
 MIN_GAP = 0.05
@@ -59,8 +66,6 @@ def sequence_row(frames: Sequence[np.ndarray], points, masks, flows, valids, ks,
     forward ones, which for such a video compare the very same frame pairs (pair (t, 2T-1-t-k) of
     the extended sequence shows frames t and t+k): the anchors' rows skip computing them twice.
     """
-    from sim2real.metrics.consistency import farneback_flow, flow_errors, orb_curve, revisit_of, revisit_orb
-
     T = len(frames)
     est = [farneback_flow(frames[t], frames[t + 1]) for t in range(T - 1)]
     per = {"of_error": [], "of_epe": [], "of_error_vs_ceiling": [], "of_epe_vs_ceiling": []}

@@ -22,14 +22,15 @@ import numpy as np
 from tqdm import tqdm
 
 from sim2real.fileio import atomic_write_image, atomic_write_json
+from sim2real.grid import tile
+from sim2real.inference.dice import dice_of, segmenters  # torch-heavy training code, only with labels
 from sim2real.inference.frames import chunked, iter_gbuffers
 from sim2real.inference.realimages import fit_image, to_nchw
 from sim2real.inference.report import write_report
 from sim2real.inference.rows import PAPER_KS, calibration, pool_rows, positions, scalars, sequence_row
 from sim2real.inference.video import write_video
 from sim2real.metrics.consistency import orb_settings_for
-from sim2real.metrics.odometry import MIN_INLIERS, SUCCESS_DEG, odometry, odometry_orb
-from sim2real.metrics.odometry import summarise as odo_summarise
+from sim2real.metrics.odometry import MIN_INLIERS, SUCCESS_DEG, odometry, odometry_orb, summarise as odo_summarise
 from sim2real.metrics.realism import fid_kid, proxy_colour_texture_distance
 from sim2real.metrics.twosample import RANDOM_NET_SEED, RandomFeatures, c2st, random_kid
 from sim2real.render.motion import MotionMeter
@@ -210,8 +211,6 @@ def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[st
                        say: Say = lambda m: None) -> dict:
     """Dice of every row (:mod:`sim2real.inference.dice`) against the views' simulated liver.
     Returns ``{"dice": {...}, "info": {...}, "rows": {row: value}, "reason"}``."""
-    from sim2real.inference.dice import dice_of, segmenters  # torch-heavy training code, only with labels
-
     labelled = real_set.labelled
     dice = {"dice": None, "dice_a_ref": None, "dice_real_train": None, "dice_real_held_out": None, "dice_ceiling": None}
     info = {"n_train": len(labelled), "n_eval": len(vs.scored["model"]), "iterations": s.seg_iterations,
@@ -233,7 +232,7 @@ def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[st
                 dice_real_held_out=seg_info["held_out_dice"]["value"],
                 dice_real_train=float(np.mean([m["train_dice"] for m in seg_info["per_seed"]])),
                 dice_ceiling=info["rows"].get("ceiling", {}).get("value"))
-    reason = info["rows"]["model"]["reason"] if dice["dice"] is None else None
+    reason = info["rows"]["model"]["reason"]  # None when the seeds agree; else their range beside the mean
     return {"dice": dice, "info": info, "rows": values, "reason": reason}
 
 
@@ -475,8 +474,6 @@ def _sample_indices(T: int) -> list[int]:
 
 def _grid(rows: list[list[np.ndarray]], gap: int = 2) -> np.ndarray:
     """Tile uint8 RGB images (rows of columns) with white gaps, each fitted to the first one's size."""
-    from sim2real.grid import tile
-
     h, w = rows[0][0].shape[:2]
     return tile([[im if im.shape[:2] == (h, w) else fit_image(im, h, w) for im in row] for row in rows], gap)
 

@@ -41,14 +41,22 @@ import torch
 from tqdm import tqdm
 
 from sim2real.config import to_dict
+from sim2real.data.views import list_views
 from sim2real.engine import precision
+from sim2real.engine.checkpoint import LAST, load_checkpoint
+from sim2real.engine.trainer import resolve_device
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, deferred_fsync, fsync_files, prepare_output_dir
 from sim2real.inference.export import export_ground_truth
 from sim2real.inference.frames import LazyGBuffers, chunked, iter_gbuffers, iter_view_files
+from sim2real.inference.realimages import to_nchw
 from sim2real.inference.video import BackgroundFrameWriter, _rate
+from sim2real.methods import get_method
+from sim2real.presets import config_from_dict
 from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.classes import ClassTable
+from sim2real.scene.scene import Scene
+from sim2real.scene.trajectory import Trajectory
 
 FORMAT = "sim2real-translate/1"
 DEFAULT_BATCH = 8
@@ -165,7 +173,6 @@ class TrainedModel:
             b = self.method.inference_batch(chunk, info.index, self.device)
             r = None
             if real is not None:
-                from sim2real.inference.realimages import to_nchw
 
                 r = (to_nchw([np.asarray(x) for x in real[i : i + batch]]).to(self.device) / 127.5) - 1.0
             with precision.autocast(self.device, self.amp):
@@ -240,8 +247,6 @@ class FrameSequence:
 
 def find_checkpoint(run_dir: str | os.PathLike, checkpoint: str | os.PathLike | None = None) -> Path:
     """The checkpoint to load: ``checkpoint`` if given, else ``RUN/checkpoints/last.pt``."""
-    from sim2real.engine.checkpoint import LAST
-
     if checkpoint is not None:
         path = Path(checkpoint)
         if not path.is_file():
@@ -265,11 +270,6 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
     method and scene list come from the checkpoint itself; the scene folders are not needed
     (the textures hold their objects' bounding boxes).
     """
-    from sim2real.presets import config_from_dict
-    from sim2real.engine.checkpoint import load_checkpoint
-    from sim2real.engine.trainer import resolve_device
-    from sim2real.methods import get_method
-
     path = find_checkpoint(run_dir, checkpoint)
     state = load_checkpoint(path)
     try:
@@ -327,9 +327,6 @@ class TranslateSource:
 def trajectory_source(model: TrainedModel, scene: str | os.PathLike, trajectory: str | os.PathLike) -> TranslateSource:
     """``--scene`` (a scene folder, or the name of one of the run's scenes whose folder still
     exists) and ``--trajectory`` -> a source; every input is checked before anything is written."""
-    from sim2real.scene.scene import Scene
-    from sim2real.scene.trajectory import Trajectory
-
     path = Path(scene)
     if not (path / "scene.json").is_file() and str(scene) in model.infos:
         info = model.infos[str(scene)]
@@ -350,8 +347,6 @@ def trajectory_source(model: TrainedModel, scene: str | os.PathLike, trajectory:
 
 def views_source(model: TrainedModel, views_dir: str | os.PathLike) -> TranslateSource:
     """A finished views folder (``sim2real render``) -> a source, its views in file order."""
-    from sim2real.data.views import list_views
-
     manifest, files = list_views(views_dir)
     if not files:
         raise UserError(f"views folder {views_dir} holds no views")

@@ -23,6 +23,8 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Iterable, Iterator
 
+import av
+import imageio_ffmpeg
 import numpy as np
 
 from sim2real.errors import UserError
@@ -49,10 +51,6 @@ def pad_even(frame: np.ndarray) -> np.ndarray:
 
 
 def _pyav_has_libx264() -> bool:
-    try:
-        import av
-    except ImportError:
-        return False
     return "libx264" in av.codecs_available
 
 
@@ -63,8 +61,6 @@ def _rate(fps: float) -> Fraction:
 
 
 def _encode_pyav(frames: Iterator[np.ndarray], first: np.ndarray, tmp: Path, fps: float, crf: int) -> int:
-    import av
-
     size = first.shape[:2]
     container = av.open(str(tmp), mode="w")
     try:
@@ -88,8 +84,6 @@ def _encode_pyav(frames: Iterator[np.ndarray], first: np.ndarray, tmp: Path, fps
 
 
 def _encode_imageio(frames: Iterator[np.ndarray], first: np.ndarray, tmp: Path, fps: float, crf: int) -> int:
-    import imageio_ffmpeg
-
     size = first.shape[:2]
     hp, wp = pad_even(first).shape[:2]
     writer = imageio_ffmpeg.write_frames(
@@ -135,8 +129,6 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
 
 def read_video_frames(path: str | os.PathLike) -> np.ndarray:
     """Decode every frame of a video -> uint8 (N, H, W, 3) RGB (for tests and checks)."""
-    import av
-
     try:
         with av.open(str(path)) as container:
             frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
@@ -149,8 +141,6 @@ def read_video_frames(path: str | os.PathLike) -> np.ndarray:
 
 def read_video(path: str | os.PathLike) -> tuple[int, int, int]:
     """(number of decoded frames, height, width) of a video."""
-    import av
-
     try:
         with av.open(str(path)) as container:
             n, h, w = 0, 0, 0

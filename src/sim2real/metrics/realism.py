@@ -20,6 +20,8 @@ from typing import Iterable, Iterator
 import numpy as np
 import torch
 from torch import Tensor, nn
+from torchmetrics.image.fid import FrechetInceptionDistance
+from torchmetrics.image.kid import KernelInceptionDistance
 
 from sim2real.colour import grey
 from sim2real.metrics.inception import FID_WEIGHTS_ENV, FID_WEIGHTS_FILENAME, resolve_fid_weights
@@ -105,9 +107,6 @@ def fid_kid(gen_images: ImageSource, real_images: ImageSource, feature_module: n
     statistics from those features (their ``feature=`` is an identity over them). Returns
     ``{"fid", "kid_mean", "kid_std", "kid_subset_size", "kid_subsets", "n_real", "n_gen", "num_features"}``.
     """
-    from torchmetrics.image.fid import FrechetInceptionDistance
-    from torchmetrics.image.kid import KernelInceptionDistance
-
     if not isinstance(feature_module, nn.Module):
         raise TypeError("feature_module must be a torch.nn.Module")
     device = _module_device(feature_module)

@@ -24,6 +24,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+from tqdm import tqdm
+
+from sim2real.metrics.realism import dice as dice_score
 
 
 def _block(cin: int, cout: int) -> nn.Sequential:
@@ -93,8 +96,6 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
     validation Dice is still recorded in ``history``): the step count then does not depend on
     how the kernels round. Returns the model in eval mode, on ``device``.
     """
-    from tqdm import tqdm
-
     images = _check_images(images)
     if not isinstance(labels, Tensor):
         labels = torch.as_tensor(labels)
@@ -114,8 +115,6 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
     y_all = labels.to(device=device, dtype=torch.float32)[:, None]
     n = x_all.shape[0]
     best, best_state, since = -1.0, None, 0
-    if val is not None:
-        from sim2real.metrics.realism import dice as dice_score
     model.train()
     for it in tqdm(range(iterations), desc="liver U-Net", unit="it", disable=not progress):
         if val is not None and it > 0 and it % check_every == 0:

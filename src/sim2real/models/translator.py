@@ -21,7 +21,6 @@ All padding is ``pad_type`` (reflect). Domain A is ``cat(a_tex, a_ref)`` with
 
 from __future__ import annotations
 
-
 import torch
 from torch import nn
 

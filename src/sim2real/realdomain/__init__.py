@@ -15,12 +15,16 @@ module                                 holds
 
 from sim2real.realdomain.appearance import Appearance, derive_seed, linear_to_srgb, srgb_to_linear
 from sim2real.realdomain.materials import (
-    MATERIALS, SceneMaterial, Surface, material_fat, material_gallbladder, material_ligament, material_liver,
+    MATERIALS,
+    SceneMaterial,
+    Surface,
+    material_fat,
+    material_gallbladder,
+    material_ligament,
+    material_liver,
     material_wall,
 )
-from sim2real.realdomain.shading import (
-    RealFrame, RenderOptions, circular_mask, render_frame, scope_light_falloff,
-)
+from sim2real.realdomain.shading import RealFrame, RenderOptions, circular_mask, render_frame, scope_light_falloff
 from sim2real.realdomain.writer import FORMAT, make_real_domain, run_jobs, write_label
 
 __all__ = [

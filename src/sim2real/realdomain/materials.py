@@ -22,20 +22,26 @@ Each material returns a :class:`Surface` (albedo, bump gradient, gloss); the sha
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from sim2real.realdomain.appearance import Appearance, derive_seed, srgb_to_linear
 from sim2real.realdomain.solid_texture import (
-    CellField, Noise, VesselTree, hash_unit, line_profile, smoothstep, surface_samples,
+    CellField,
+    Noise,
+    VesselTree,
+    hash_unit,
+    line_profile,
+    smoothstep,
+    surface_samples,
 )
 
 
 def _stable(text: str) -> int:
     """A hash of a string that is the same in every process (unlike ``hash``)."""
-    import zlib
-
     return zlib.crc32(text.encode())
 
 
@@ -87,7 +93,6 @@ class _Object:
             if self._facing is not None:
                 # Drop the far side of closed shells (e.g. the wall's outer surface) that no
                 # camera in the region can see; queries there would still work, only coarser.
-                from scipy.spatial import cKDTree
 
                 tri = self.vertices[self.faces]
                 centres = tri.mean(axis=1)

@@ -15,12 +15,13 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+import cv2
 import numpy as np
 
 from sim2real.colour import GREY_WEIGHTS
-from sim2real.render.gbuffer import GBuffer
 from sim2real.realdomain.appearance import linear_to_srgb
 from sim2real.realdomain.materials import SceneMaterial
+from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.scene import LABEL_BACKGROUND
 
 
@@ -81,8 +82,6 @@ def circular_mask(height: int, width: int, radius: float) -> np.ndarray:
 
 def render_frame(g: GBuffer, material: SceneMaterial, options: RenderOptions | None = None, seed: int = 0) -> RealFrame:
     """Shade one G-buffer with the scene's solid textures (see the module docstring)."""
-    import cv2
-
     opt = options or RenderOptions()
     app = material.appearance
     h, w = g.height, g.width

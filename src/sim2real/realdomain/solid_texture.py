@@ -23,6 +23,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
 
 _ZERO3 = np.zeros(3, np.float32)
 _M1 = np.uint32(0x7FEB352D)
@@ -233,8 +236,6 @@ class CellField:
     depend on which samples found the cell."""
 
     def __init__(self, samples: np.ndarray, cell: float, seed: int, reach: float = 0.0, jitter: float = 0.9):
-        from scipy.spatial import cKDTree
-
         self.cell = float(cell)
         cells = np.unique(_cell_keys(np.floor(samples / cell)))
         ring = 1 + int(np.ceil(reach / cell))
@@ -286,8 +287,6 @@ def line_profile(distance: np.ndarray, radius: np.ndarray, footprint: np.ndarray
 def blue_noise(samples: np.ndarray, spacing: float, seed: int) -> np.ndarray:
     """A subset of ``samples`` about ``spacing`` apart: the first sample (in a seeded random order)
     of every cubic cell of size ``spacing``, then points closer than half the spacing dropped."""
-    from scipy.spatial import cKDTree
-
     rng = np.random.default_rng(seed)
     order = rng.permutation(len(samples))
     keys = _cell_keys(np.floor(samples[order] / spacing))
@@ -316,10 +315,6 @@ class VesselTree:
 
     def __init__(self, samples: np.ndarray, spacing: float, seed: int, r_leaf: float, r_max: float,
                  prune: int = 4, roots: int | None = None, exponent: float = 3.0, smooth: int = 3):
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
-        from scipy.spatial import cKDTree
-
         rng = np.random.default_rng(seed)
         nodes = blue_noise(samples, spacing, seed)
         n = len(nodes)

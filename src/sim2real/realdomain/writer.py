@@ -14,17 +14,26 @@ them as arrays gives the indices, image viewers show the class tables' palette c
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from PIL import Image
+from tqdm import tqdm
 
 from sim2real.errors import UserError
+from sim2real.fileio import atomic_write_bytes, atomic_write_image, atomic_write_json, prepare_output_dir
+from sim2real.pool import WorkerPool
 from sim2real.realdomain.appearance import Appearance, derive_seed
 from sim2real.realdomain.materials import SceneMaterial
 from sim2real.realdomain.shading import RenderOptions, render_frame
+from sim2real.render.raycast import RayCaster
+from sim2real.scene.camera import check_fov, check_size
 from sim2real.scene.classes import LABEL_BACKGROUND, ClassTable
+from sim2real.scene.scene import Scene
+from sim2real.scene.trajectory import make_trajectory, sample_poses
 
 FORMAT = "sim2real-realdomain/1"
 
@@ -35,12 +44,6 @@ _APPEARANCE, _POSE, _TRAJECTORY, _FRAME, _SEQUENCE_FRAME = 11, 12, 13, 14, 15
 def write_label(path: str | os.PathLike, label: np.ndarray, table: ClassTable | None = None) -> None:
     """Palette PNG: array values are the class label ids, viewers show the palette of ``table``
     (default: the default class table)."""
-    import io
-
-    from PIL import Image
-
-    from sim2real.fileio import atomic_write_bytes
-
     pal = (table if table is not None else ClassTable.defaults()).palette_lut()
     im = Image.fromarray(np.ascontiguousarray(label.astype(np.uint8)), mode="P")
     im.putpalette(pal.reshape(-1).tolist())
@@ -63,9 +66,6 @@ class WorkerScenes:
         self.scenes: dict = {}
 
     def scene(self, k: int):
-        from sim2real.render.raycast import RayCaster
-        from sim2real.scene.scene import Scene
-
         if k not in self.scenes:
             scene = Scene.load(self.dirs[k])
             self.scenes[k] = (RayCaster(scene), SceneMaterial(scene, self.appearances[k]))
@@ -74,8 +74,6 @@ class WorkerScenes:
 
 def render_job(state: WorkerScenes, job) -> str:
     """Render and write one frame: ``job`` = (scene index, camera, noise seed, image path, label path)."""
-    from sim2real.fileio import atomic_write_image
-
     k, camera, seed, image_path, label_path = job
     caster, material = state.scene(k)
     frame = render_frame(caster.render(camera), material, state.options, seed)
@@ -89,10 +87,6 @@ def run_jobs(scene_dirs: Sequence[str], appearances: Sequence[Appearance], optio
     """Render ``jobs`` = [(scene index, camera, noise seed, image path, label path)] with a process
     pool (one Embree ray caster + materials per scene and worker); output does not depend on
     ``workers``."""
-    from tqdm import tqdm
-
-    from sim2real.pool import WorkerPool
-
     workers = max(1, min(len(jobs), workers or os.cpu_count() or 1))
     setup_args = ([str(d) for d in scene_dirs], [a.to_json() for a in appearances], options.to_json())
     with tqdm(total=len(jobs), desc=desc, unit="frame", disable=not progress) as bar, \
@@ -130,12 +124,6 @@ def make_real_domain(
         OUT/sequences/000/trajectory.txt
         OUT/manifest.json               seeds, parameters, appearance of each scene, every camera
     """
-    from sim2real.fileio import atomic_write_json, prepare_output_dir
-    from sim2real.render.raycast import RayCaster
-    from sim2real.scene.camera import check_fov, check_size
-    from sim2real.scene.scene import Scene
-    from sim2real.scene.trajectory import make_trajectory, sample_poses
-
     if int(images) != images or images < 1:
         raise UserError(f"the number of images must be at least 1, got {images}")
     if int(sequences) != sequences or sequences < 0:

@@ -17,20 +17,25 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterable, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from sim2real.errors import UserError
+from sim2real.fileio import fsync_files
+from sim2real.pool import WorkerPool
 from sim2real.render.gbuffer import GBuffer
+from sim2real.render.reference import save_preview
 from sim2real.scene.camera import Camera, pixel_centres
+from sim2real.scene.scene import Scene
+from sim2real.threads import worker_count
 
 if TYPE_CHECKING:
     from sim2real.scene.classes import ClassTable
-    from sim2real.scene.scene import Scene
 
 _MISS = 1e30
 
 
 def _embree():
-    try:
+    try:  # imported here, not at the top: a broken Embree install gets one line, not a traceback at import
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
     except ImportError as e:  # pragma: no cover - exercised only on broken installs
@@ -284,7 +289,6 @@ def caster_setup(source: "SceneGeometry | str | os.PathLike") -> RayCaster:
     :class:`SceneGeometry`, or from a scene folder that the worker loads itself."""
     if isinstance(source, SceneGeometry):
         return RayCaster(source)
-    from sim2real.scene.scene import Scene
 
     return RayCaster(Scene.load(source))
 
@@ -299,7 +303,6 @@ def _render_to_file(caster: RayCaster, job: tuple[Camera, str, bool]) -> str:
     g = caster.render(camera)
     g.save(path, durable=False)  # in the worker: only the path goes back; fsync'd together at the end
     if preview:
-        from sim2real.render.reference import save_preview
 
         save_preview(g, Path(path).with_suffix(".png"))
     return path
@@ -319,17 +322,10 @@ def render_views(
     before the first camera is drawn. ``cameras`` may be lazy (e.g.
     :func:`sim2real.scene.trajectory.iter_poses`): it is drawn as fast as the workers render.
     ``caster`` (of the same scene) is reused in-process and gives the workers its geometry."""
-    from tqdm import tqdm
-
-    from sim2real.fileio import fsync_files
-    from sim2real.pool import WorkerPool
-    from sim2real.threads import worker_count
-
     if caster is None:
         if not isinstance(scene, (str, os.PathLike)):
             geometry = SceneGeometry.of(scene)
         else:
-            from sim2real.scene.scene import Scene
 
             geometry = SceneGeometry.of(Scene.load(scene))
     else:

@@ -20,6 +20,7 @@ backward warp w_i(b_j), which leaves no splatting holes.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from sim2real.render.gbuffer import GBuffer
@@ -60,8 +61,6 @@ def flow(gi: GBuffer, gj: GBuffer, eps: float = OCCLUSION_EPS_MM) -> tuple[np.nd
 def warp_image(image_j: np.ndarray, uv: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """w_i(image_j): bilinear samples of ``image_j`` (H_j, W_j[, C]) at ``uv`` (view i's grid);
     zero where not visible. Uses OpenCV's remap, whose integer coordinates are pixel centres."""
-    import cv2
-
     maps = (uv - 0.5).astype(np.float32)
     src = np.ascontiguousarray(image_j.astype(np.float32))
     out = cv2.remap(src, maps[..., 0], maps[..., 1], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

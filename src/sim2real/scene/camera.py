@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from sim2real.errors import UserError
 
@@ -133,13 +134,9 @@ def unproject_depth(depth: np.ndarray, K: np.ndarray, world_to_camera: np.ndarra
 
 def rotation_to_quaternion(R: np.ndarray) -> np.ndarray:
     """3x3 rotation -> unit quaternion (qx, qy, qz, qw) with qw >= 0."""
-    from scipy.spatial.transform import Rotation
-
     q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
     return q if q[3] >= 0 else -q
 
 
 def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_quat(np.asarray(q, dtype=np.float64)).as_matrix()

@@ -20,6 +20,7 @@ from the ray caster. Scenes written before these fields existed load with the de
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -170,8 +171,6 @@ class Scene:
         :meth:`save` and after :meth:`load` (in float64, 51 of the 289,704 vertex coordinates of
         the demo's two scenes sit so close to a rounding boundary that float32 storage moves
         them across it)."""
-        import hashlib
-
         h = hashlib.sha256()
         for o in self.objects:
             h.update(f"{o.name}\0{o.cls}\0{len(o.mesh.vertices)}\0{len(o.mesh.faces)}\0".encode())

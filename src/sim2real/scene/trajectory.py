@@ -28,10 +28,13 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from sim2real.errors import UserError
-from sim2real.fileio import atomic_write_text, read_json_or_none
+from sim2real.fileio import atomic_write_json, atomic_write_text, read_json_or_none
+from sim2real.render.motion import measure, pair_flow_px, rotation_deg
 from sim2real.scene.camera import Camera, intrinsics_from_fov, invert_rigid, look_at, rotation_to_quaternion
+from sim2real.scene.conventions import DEFAULT_FLOW_BUDGET, DEFAULT_MAX_DEG_PER_FRAME, LOOKS
 from sim2real.scene.tum import read_tum
 
 MAX_BACKGROUND = 0.3
@@ -142,7 +145,6 @@ class Trajectory:
             lines.append(" ".join(f"{x:.9f}" for x in row))
         atomic_write_text(path, "\n".join(lines) + "\n")
         if self.motion is not None:
-            from sim2real.fileio import atomic_write_json
 
             atomic_write_json(side_file(path), {"format": "sim2real-trajectory-motion/1", "frames": len(self.cameras),
                                                 "fps": self.fps, "motion": self.motion})
@@ -179,13 +181,6 @@ def side_file(path: str | os.PathLike) -> Path:
     return p.with_name(p.name + ".json")
 
 
-DEFAULT_FLOW_BUDGET = 0.003
-"""Median ground-truth flow per frame, as a fraction of the image width, of :func:`make_trajectory`'s
-default path: about 1.5 px per frame at 512 px, so that a perfect video keeps ORB-10 accuracy high
-(the paper's slow pans; measured in tests/test_calibration.py and docs/evaluation.md)."""
-DEFAULT_MAX_DEG_PER_FRAME = 0.4
-"""Bound on the camera's rotation between consecutive frames (degrees)."""
-LOOKS = ("smooth", "swing")
 _MEASURE_WIDTH = 128  # the path is timed on G-buffers of this width (flow fractions do not depend on it)
 
 
@@ -210,8 +205,6 @@ def make_trajectory(
     to its middle part; a shorter one runs slower. ``None`` for both: the spline is sampled
     uniformly (the old behaviour). The result carries its measured motion (``Trajectory.motion``).
     """
-    from scipy.interpolate import CubicSpline
-
     if frames < 2:
         raise UserError(f"a trajectory needs at least 2 frames, got {frames}")
     if look not in LOOKS:
@@ -278,8 +271,6 @@ def _measure_cameras(cams: list[Camera]) -> list[Camera]:
 def measure_motion(caster, cameras: list[Camera]) -> dict:
     """:func:`sim2real.render.motion.measure` of a path, ray cast at about 128 px width; pixel
     figures are given at the cameras' own width."""
-    from sim2real.render.motion import measure
-
     small = _measure_cameras(cameras)
     m = measure(caster.render(c) for c in small)
     scale = cameras[0].width / small[0].width
@@ -293,8 +284,6 @@ def _timed_parameters(caster, eye_fn, look_fn, frames: int, K, height: int, widt
                       flow_budget: float | None, max_deg: float | None, oversample: int = 4) -> np.ndarray:
     """Spline parameters of ``frames`` frames whose steps all move the same amount, at most
     one budget unit (the larger of flow / flow_budget and rotation / max_deg)."""
-    from sim2real.render.motion import pair_flow_px, rotation_deg
-
     n = max(oversample * frames, 64)
     u = np.linspace(0.0, 1.0, n)
     eye = caster.scene.camera_region.clamp(eye_fn(u))
