@@ -10,7 +10,8 @@
 # under STUDY (never into the repository): the demo's simulated scenes (seeds 0 and 1, those of the
 # shipped model) and its 100-frame test trajectory, per NAME a real set, a run trained from the
 # shipped model with the cpu preset, its translation of the trajectory, its evaluation against
-# the real set and the border measure (benchmarks/footage_borders.py); the shipped model is
+# the real set, the border measure (benchmarks/footage_borders.py) and the real held-out reference
+# row (benchmarks/realset_reference.py); the shipped model is
 # translated and evaluated against each real set as the "before" row.
 #
 # NAME=plain:DIR trains on DIR as a plain folder of whole frames (no real set, no content mask):
@@ -78,6 +79,7 @@ for spec in "$@"; do
         --translated shipped="$STUDY/translate_shipped" "$name=$STUDY/translate_$name" \
         --real "$name=$real" "${name}_whole_frames=$srcs" \
         --figure "$STUDY/borders_$name.png" --json "$STUDY/borders_$name.json" > /dev/null
+    [ ! -f "$real/manifest.json" ] || pin "$PYTHON" "$HERE/realset_reference.py" "$real" > "$STUDY/realref_$name.json"
     all+=("$name=$STUDY/translate_$name")
     echo "$name: $STUDY/eval_$name/report.html, $STUDY/borders_$name.json, $STUDY/borders_$name.png"
 done
