@@ -14,9 +14,10 @@ the simulated view has tissue (a ray hit), in three regions of the frame:
 * ``centre``: inside the ellipse of half the frame's size.
 
 A model that learned "real means black corners" shows a ``corners`` share well above a_ref's and
-above its own ``centre`` share. ``--real`` gives the same shares for real images (a real set, or folders of frames) as the
-evaluation fits them to the frame size (cover, centre crop; all pixels, there is no tissue mask),
-for scale: what the discriminator would see if crops were not kept inside the content area.
+above its own ``centre`` share. ``--real`` gives the same shares for real images (a real set, or
+folders of frames) as the evaluation fits them to the frame size (cover, centre crop; all pixels,
+there is no tissue mask), for scale: what the discriminator would see if crops were not kept
+inside the content area.
 ``--figure`` writes a_ref and each translated sequence at frames 0, T/2 and T-1 (simulated views
 only).
 """
