@@ -35,7 +35,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--frames", type=positive_int, default=100, help="frames of a generated test trajectory")
     p.add_argument("--eval-views", type=positive_int, default=32, help="random views for the realism metrics")
-    p.add_argument("--seg-iterations", type=positive_int, default=600, help="steps of each Dice segmenter at most")
+    p.add_argument("--seg-iterations", type=positive_int, default=200, help="steps of each Dice segmenter (exactly)")
     p.add_argument("--real-images", type=positive_int, default=200, help="embedded stand-in real images")
     p.add_argument("--real-sequences", type=non_negative_int, default=4, help="embedded stand-in real sequences")
     p.add_argument("--sequence-frames", type=positive_int, default=30, help="frames per embedded real sequence")

@@ -34,8 +34,8 @@ def register(sub) -> None:
     p.add_argument("--real-images", type=positive_int, default=200, help="stand-in real images")
     p.add_argument("--frames", type=positive_int, default=100, help="frames of the test trajectory")
     p.add_argument("--eval-views", type=positive_int, default=32, help="random views for the realism metrics")
-    p.add_argument("--seg-iterations", type=positive_int, default=600,
-                   help="training steps of each Dice segmenter at most (each stops when its held-out Dice converges)")
+    p.add_argument("--seg-iterations", type=positive_int, default=200,
+                   help="training steps of each Dice segmenter (exactly; deterministic)")
     add_motion_args(p)
     p.add_argument("--fid-weights", default=None, help="pt_inception-2015-12-05 weights for FID/KID (optional)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")

@@ -4,7 +4,7 @@
                       [--trajectory FILE... (one per scene) | --frames 100] [--views 64]
     sim2real evaluate --frames DIR|VIDEO --trajectory FILE --scene SCENE_DIR --real DIR --out DIR
                       [--fid-weights PATH] [--device auto|cpu|cuda] [--checkpoint PATH]
-                      [--seg-iterations 600] [--seg-size 32x64] [--seg-seeds 3] [--max-real 500] [--batch 8] [--seed 0]
+                      [--seg-iterations 200] [--seg-size 32x64] [--seg-seeds 3] [--max-real 500] [--batch 8] [--seed 0]
 
 The second form evaluates a video made by any tool along the trajectory of the scene
 (:mod:`sim2real.inference.external`). Writes DIR/metrics.json, DIR/report.md, DIR/report.html, DIR/plots/, DIR/samples/, DIR/videos/
@@ -56,8 +56,8 @@ def register(sub) -> None:
     p.add_argument("--batch", type=positive_int, default=8, help="frames per network call (default 8)")
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--max-real", type=positive_int, default=500, help="real images used for FID/KID (default 500)")
-    p.add_argument("--seg-iterations", type=non_negative_int, default=600,
-                   help="liver U-Net training steps at most; each stops when its held-out Dice converges (default 600)")
+    p.add_argument("--seg-iterations", type=non_negative_int, default=200,
+                   help="liver U-Net training steps, exactly (deterministic; default 200)")
     p.add_argument("--seg-size", type=_size, default=(32, 64), metavar="HxW", help="segmenter image size (default 32x64)")
     p.add_argument("--orb-features", type=positive_int, default=1000)
     p.add_argument("--orb-max-k", type=positive_int, default=20, help="ORB curve up to this k (default 20)")

@@ -81,7 +81,7 @@ class BenchmarkSettings:
     sequence_frames: int = 30
     frames: int = 100
     eval_views: int = 32
-    seg_iterations: int = 600
+    seg_iterations: int = 200
     trajectory: dict = field(default_factory=dict)
     """Motion budget of the generated test paths (make_trajectory keywords)."""
     parallel: int = 1

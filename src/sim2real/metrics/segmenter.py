@@ -110,6 +110,9 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
         model = LiverUNet(base_channels=base_channels, depth=depth)
     model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=lr)
+    # without early stopping the last weights are kept: the learning rate falls to 0 along a cosine,
+    # so that they settle instead of stopping at a random point of Adam's noise
+    sched = None if early_stop else torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(iterations, 1))
     gen = torch.Generator(device="cpu").manual_seed(seed)
     x_all = images.to(device)
     y_all = labels.to(device=device, dtype=torch.float32)[:, None]
@@ -145,6 +148,8 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
+        if sched is not None:
+            sched.step()
     if best_state is not None and early_stop:
         d = dice_score(predict(model, val[0]), val[1])
         if history is not None:
