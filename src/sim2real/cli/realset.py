@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import non_negative_float, positive_float, positive_int
+from sim2real.cli.args import int_range, non_negative_float, positive_float, positive_int
 
 
 def _fraction(text: str) -> float:
@@ -26,14 +26,7 @@ def _fraction(text: str) -> float:
     return v
 
 
-def _distance(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer from -1 to 64, got '{text}'") from None
-    if not -1 <= v <= 64:
-        raise argparse.ArgumentTypeError(f"expected an integer from -1 to 64, got '{text}'")
-    return v
+_distance = int_range(-1, 64)
 
 
 def register(sub) -> None:
