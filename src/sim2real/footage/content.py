@@ -219,11 +219,16 @@ def detect(stats: FrameStats) -> ContentArea:
         band = _edge_bands(mean, std, inside, float(np.median(std[inside])))
         if band.any():
             overlay |= cv2.resize(band.astype(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).astype(bool)
+    return _area(view, overlay, shape, view_small)
+
+
+def _area(view: np.ndarray, overlay: np.ndarray, shape: str, view_small) -> ContentArea:
+    """The content area of a field of view less its overlays, trimmed to its box."""
     mask = view & ~overlay
     box = _box(mask, overlay & view)
-    t, l, b, r_ = box
+    t, l, b, r = box
     trimmed = np.zeros_like(mask)
-    trimmed[t:b, l:r_] = mask[t:b, l:r_]
+    trimmed[t:b, l:r] = mask[t:b, l:r]
     return ContentArea(trimmed, box, shape, float((overlay & view).mean()), overlay & view, view_small)
 
 
@@ -251,12 +256,7 @@ def frame_area(image: np.ndarray, source: ContentArea, size: tuple[int, int]) ->
         return None
     view, shape = drawn
     overlay = source.overlay if source.overlay is not None else np.zeros_like(view)
-    mask = view & ~overlay
-    box = _box(mask, overlay & view)
-    t, l, b, r = box
-    trimmed = np.zeros_like(mask)
-    trimmed[t:b, l:r] = mask[t:b, l:r]
-    return ContentArea(trimmed, box, shape, float((overlay & view).mean()), overlay & view, view_small)
+    return _area(view, overlay, shape, view_small)
 
 
 def _edge_bands(mean: np.ndarray, std: np.ndarray, inside: np.ndarray, moving: float) -> np.ndarray:
