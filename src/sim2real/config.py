@@ -147,6 +147,15 @@ class DataConfig:
     min_overlap: float = 0.1
     """Fraction of view i's pixels that must be visible in view j; below it view j is redrawn,
     view i kept (up to 10 draws; then the j with the largest overlap is used)."""
+    view_pool: int = 0
+    """Views per bare scene folder in ``--scenes``: N > 1 draws every training view from a fixed
+    pool of N random poses per scene, ray-cast once before the first step into a memory-mapped
+    cache (``$SIM2REAL_CACHE/views/``, shared by the loader workers, the DDP ranks, ``--resume``
+    and later runs of the same scene, size, field of view, pool size and seed; data/viewpool.py).
+    0: unlimited fresh random poses, two ray-cast per step. The presets for a GPU pool 3,000 views
+    (the paper's count per scene): 2.25 MiB a 256x512 view, 6.6 GiB per scene; a cached sample
+    costs a worker a third of a fresh one (benchmarks/bench_data.py, docs/gpu.md). Views folders
+    and the video methods' paths (data/triplets.py) are not pooled."""
 
 
 @dataclass

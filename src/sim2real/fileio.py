@@ -152,6 +152,12 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:
     return data
 
 
+def cache_root() -> Path:
+    """The folder of sim2real's caches (trained segmenters, view pools): ``$SIM2REAL_CACHE``, by
+    default ``~/.cache/sim2real``."""
+    return Path(os.environ.get("SIM2REAL_CACHE") or Path.home() / ".cache" / "sim2real")
+
+
 def read_json_or_none(path: str | os.PathLike) -> dict | None:
     """:func:`read_json` for optional files: None where it would raise."""
     try:

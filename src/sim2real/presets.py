@@ -10,7 +10,7 @@ run's ``config.yaml`` reads back as the same config (:func:`load_config`).
 preset         what it is
 =============  =====================================================================================
 ``paper``      the paper's settings at 256x512 (for a GPU; the default of ``demo --train`` and
-               ``benchmark`` there)
+               ``benchmark`` there), 3,000 views per scene ray-cast once into the view cache
 ``small``      the paper's recipe at 128x256 with 32 filters (a quick GPU run)
 ``tiny``       64x128, 8 filters, 20 iterations (the tests)
 ``cpu``        the recipe of the shipped model's first stage and the default of ``demo --train`` and
@@ -88,18 +88,29 @@ def _method_sets(cfg: TrainConfig, sets: Sequence[str]) -> list[str]:
     return out
 
 
+POOL_VIEWS = 3000
+"""``data.view_pool`` of the presets for a GPU: the paper's 3,000 random views per scene
+(Section 4), ray-cast once into the view cache (data/viewpool.py). There the loader feeds a step
+of milliseconds, and a cached sample costs a worker a third of a fresh one; building the pool
+takes about 3,000 x 0.07 s of CPU, 14 s on 16 cores, once per scene (benchmarks/bench_data.py).
+Disk: 2.25 MiB a 256x512 view, 6.6 GiB per scene (0.56 MiB and 1.6 GiB at 128x256)."""
+
+
 def paper(method: str = "ours") -> TrainConfig:
     """The paper's settings (supplementary): 256x512, 64 filters, 3 discriminator scales, MS-SSIM
-    with an 11-pixel window, lr 1e-4 / 1e-3, 500k iterations, view consistency from step 10k."""
-    return _with_method(TrainConfig(), method, "paper")
+    with an 11-pixel window, lr 1e-4 / 1e-3, 500k iterations, view consistency from step 10k, and
+    the paper's 3,000 views per scene, ray-cast once into the view cache (:data:`POOL_VIEWS`)."""
+    cfg = TrainConfig()
+    cfg.data = DataConfig(view_pool=POOL_VIEWS)
+    return _with_method(cfg, method, "paper")
 
 
 def small(method: str = "ours") -> TrainConfig:
     """The paper's recipe at 128x256: 32 filters, 2 discriminator scales, a 7-pixel MS-SSIM window
     (pytorch-msssim needs a short side > 16 (win - 1)), 256-texel textures, view consistency from
-    step 2000."""
+    step 2000, a view pool of :data:`POOL_VIEWS` per scene."""
     cfg = TrainConfig(iterations=20_000, checkpoint_every=1_000, log_every=50, image_every=500)
-    cfg.data = DataConfig(height=128, width=256)
+    cfg.data = DataConfig(height=128, width=256, view_pool=POOL_VIEWS)
     cfg.generator = GeneratorConfig(filters=32)
     cfg.discriminator = DiscriminatorConfig(filters=32, scales=2)
     cfg.loss = LossConfig(ssim_win=7)
@@ -109,9 +120,11 @@ def small(method: str = "ours") -> TrainConfig:
 
 def tiny(method: str = "ours") -> TrainConfig:
     """64x128, 8 filters, one residual block, 20 iterations, loading in the training process: the
-    whole path in seconds, for the tests. A 3-pixel MS-SSIM window (the only one at 64 px)."""
+    whole path in seconds, for the tests. A 3-pixel MS-SSIM window (the only one at 64 px). A view
+    pool of 16 per scene (0.29 MiB of disk): fewer ray casts than the 40 fresh views of its 20
+    steps, and the tests run the default data path of the GPU presets."""
     cfg = TrainConfig(iterations=20, checkpoint_every=10, log_every=5, image_every=10)
-    cfg.data = DataConfig(height=64, width=128, workers=0)
+    cfg.data = DataConfig(height=64, width=128, workers=0, view_pool=16)
     cfg.generator = GeneratorConfig(filters=8, res_blocks=1)
     cfg.discriminator = DiscriminatorConfig(filters=8, layers=2, scales=2)
     cfg.loss = LossConfig(ssim_win=3)
@@ -120,7 +133,7 @@ def tiny(method: str = "ours") -> TrainConfig:
 
 
 CPU_SETS = ("generator.filters=16", "discriminator.filters=16", "optim.lr_net=1e-3", "checkpoint_every=100",
-            "image_every=100", "log_every=20", "loss.ab_structure=edges", "loss.edge_power=2")
+            "image_every=100", "log_every=20", "loss.ab_structure=edges", "loss.edge_power=2", "data.view_pool=0")
 CPU_METHOD_SETS = ("method.vc_start=300", "method.tex_edges=1", "method.target_grad=false",
                    "method.texture.init_noise=1.0", "method.texture.init_noise_sigma=1.5")
 CPU_LINES_SETS = ("loss.edge_contrast=0.08",)
@@ -141,7 +154,10 @@ def cpu(method: str = "ours") -> TrainConfig:
     (``method.tex_edges=1``), the texture learning only through the translator's outputs
     (``method.target_grad=false``) and a start of band-limited noise (``method.texture.init_noise=1``,
     sigma 1.5 texels): detail fixed to the surface from step 0. The noise is a start, not learned
-    detail: at this budget the translator learns to render and keep it (white gloss-like flecks)."""
+    detail: at this budget the translator learns to render and keep it (white gloss-like flecks).
+    Fresh random views (``data.view_pool=0``): a CPU step (0.7 s) hides the loader's 0.03 s of
+    ray casting, and a pool of 3,000 would first take about a minute of both cores, a tenth of
+    ``demo --train``'s budget, for nothing."""
     cfg = override(small(method), list(CPU_SETS))
     return override(cfg, _method_sets(cfg, CPU_METHOD_SETS))
 

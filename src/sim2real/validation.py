@@ -75,6 +75,8 @@ def validate(cfg: TrainConfig) -> None:
     need(math.isfinite(dat.path_step_mm) and dat.path_step_mm >= 0, "data.path_step_mm", "finite and >= 0",
          dat.path_step_mm)
     need(0 <= dat.min_overlap <= 1, "data.min_overlap", "a fraction in [0, 1]", dat.min_overlap)
+    need(dat.view_pool == 0 or dat.view_pool >= 2, "data.view_pool",
+         "0 (fresh random views) or at least 2 (view pairs need two views)", dat.view_pool)
     lo, hi = FOV_RANGE_DEG
     need(lo <= dat.fov_x_deg <= hi, "data.fov_x_deg", f"in [{lo:g}, {hi:g}] degrees", dat.fov_x_deg)
     check_size(dat.height, dat.width)

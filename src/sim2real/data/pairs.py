@@ -4,8 +4,9 @@ i) and one real image per step.
 A method declares the kind of sample it trains on (:func:`sim2real.data.datasets.make_dataset`):
 ``view_pairs`` (i, j and their correspondences) or ``views`` (i alone: the keys ``*_j``,
 ``uv_ij`` and ``visible_ij`` are absent, and no view j is ray-cast). Views come from
-:class:`~sim2real.data.sources.SceneSource`: cached G-buffers of a views folder, or fresh random
-poses ray-cast in the loader worker.
+:class:`~sim2real.data.sources.SceneSource`: cached G-buffers of a views folder, the scene's view
+pool (data/viewpool.py: memory-mapped, read without a copy per worker), or fresh random poses
+ray-cast in the loader worker.
 
 The dataset is map-style and indexed by the **training step**: everything random in sample ``s``
 comes from ``numpy.random.default_rng((seed, rank, s))``. The data stream therefore depends only
@@ -139,14 +140,14 @@ class TrainPairs(torch.utils.data.Dataset):
     # --- views ---------------------------------------------------------------------------------
 
     def _view(self, src: SceneSource, rng: np.random.Generator, avoid: int | None = None):
-        """``(index, G-buffer)``: a cached view of ``src`` other than number ``avoid`` (index into
-        its files), or a fresh random pose ray-cast now (index None)."""
-        if src.cached:
-            n = len(src.view_files)
+        """``(index, G-buffer)``: a view of ``src``'s views folder or view pool other than number
+        ``avoid``, or a fresh random pose ray-cast now (index None)."""
+        n = src.finite
+        if n:
             k = int(rng.integers(0, n if avoid is None else n - 1))
             if avoid is not None and k >= avoid:
                 k += 1
-            return k, self._cached_view(src.view_files[k])
+            return k, (self._cached_view(src.view_files[k]) if src.cached else src.pool.view(k))
         caster = self._caster(src)
         c = self.cfg
         before = caster.skipped_background

@@ -4,8 +4,11 @@
 (``views.json`` naming their ``scene_dir``):
 
 * a **views folder** gives cached G-buffers; each step draws two different views of it;
-* a **bare scene folder** (no cache) gives unlimited fresh random views: each step ray-casts
-  new random poses (:func:`sim2real.scene.trajectory.sample_poses`) in the loader worker.
+* a **bare scene folder** gives the views of its view pool when ``data.view_pool`` > 0 (the
+  presets for a GPU: a fixed set of random poses ray-cast once into a memory-mapped cache,
+  data/viewpool.py, attached by :func:`sim2real.data.viewpool.attach_view_pools`), else unlimited
+  fresh random views: each step ray-casts new random poses
+  (:func:`sim2real.scene.trajectory.sample_poses`) in the loader worker.
 
 Several views folders of the same scene are merged.
 """
@@ -15,6 +18,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +27,9 @@ from sim2real.errors import UserError
 from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.classes import ClassTable
 from sim2real.scene.scene import Scene
+
+if TYPE_CHECKING:
+    from sim2real.data.viewpool import ViewPool
 
 
 @dataclass
@@ -38,10 +45,21 @@ class SceneSource:
     """Cached G-buffers, or None to ray-cast fresh random views."""
     class_table: ClassTable | None = None
     """Label ids and a_ref colours of the scene's classes (None: the defaults)."""
+    pool: "ViewPool | None" = None
+    """The view pool of a bare scene folder (``data.view_pool`` > 0), or None."""
 
     @property
     def cached(self) -> bool:
+        """Whether the views come from a views folder."""
         return self.view_files is not None
+
+    @property
+    def finite(self) -> int:
+        """How many views the scene has: those of its views folder or view pool; 0 for unlimited
+        fresh random views."""
+        if self.view_files is not None:
+            return len(self.view_files)
+        return 0 if self.pool is None else len(self.pool)
 
     def to_json(self) -> dict:
         table = self.class_table if self.class_table is not None else ClassTable.migrate(self.classes)

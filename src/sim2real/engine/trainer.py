@@ -51,6 +51,7 @@ import torch
 
 from sim2real.config import TrainConfig, save_yaml, to_dict
 from sim2real.data.datasets import StepSampler, make_dataset, resolve_scenes
+from sim2real.data.viewpool import attach_view_pools
 from sim2real.data.real import INDEX as REAL_INDEX, RealImages
 from sim2real.data.shm import loader_workers_for_shm
 from sim2real.data.tensors import complete_on_device, widen
@@ -205,6 +206,10 @@ class Trainer:
         try:
             if self.dist.is_main:
                 self.real.save_index()
+            # the view pools, once the run folder is taken (a refused run builds none); the video
+            # methods' paths are not single views: they ray-cast them (data/triplets.py)
+            if self.method.data != "triplets":
+                attach_view_pools(self.sources, cfg.data, cfg.seed, progress=progress and self.dist.is_main)
             self._build(state, resume, progress, init_state)
         except BaseException:
             self.lock.release()

@@ -27,7 +27,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 from pathlib import Path
 from typing import Sequence
 
@@ -35,17 +34,13 @@ import numpy as np
 import PIL
 import torch
 
-from sim2real.fileio import atomic_write_bytes, atomic_write_json
+from sim2real.fileio import atomic_write_bytes, atomic_write_json, cache_root
 from sim2real.inference.realimages import fit_image, load_segmentation_set
 from sim2real.metrics.realism import dice as dice_score
 from sim2real.metrics.segmenter import LiverUNet, predict, train_segmenter
 from sim2real.threads import one_torch_thread
 
 CACHE_FORMAT = "sim2real-segmenter-cache/2"
-
-
-def cache_root() -> Path:
-    return Path(os.environ.get("SIM2REAL_CACHE") or Path.home() / ".cache" / "sim2real")
 
 
 def library_versions() -> dict:
