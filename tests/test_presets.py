@@ -30,6 +30,7 @@ def test_the_cpu_preset_is_small_with_the_cpu_recipe():
         "checkpoint_every": (1000, 100), "log_every": (50, 20), "image_every": (500, 100),
         "generator.filters": (32, 16), "discriminator.filters": (32, 16),
         "loss.ab_structure": ("ms_ssim", "edges"), "loss.edge_power": (1.0, 2.0), "optim.lr_net": (1e-4, 1e-3),
+        "data.view_pool": (3000, 0),
     }
     # init_noise_sigma 1.5 is set by the recipe and equals the default, so it is no difference
     assert preset("cpu").method.texture.init_noise_sigma == 1.5
@@ -48,7 +49,7 @@ def test_a_method_without_the_recipes_keys_gets_the_shared_part():
     the rest applies."""
     changed = {k for k, _, _ in differences(preset("small", "recycle"), preset("cpu-lines", "recycle"))}
     assert changed == {"checkpoint_every", "log_every", "image_every", "generator.filters", "discriminator.filters",
-                       "loss.ab_structure", "loss.edge_power", "loss.edge_contrast", "optim.lr_net"}
+                       "loss.ab_structure", "loss.edge_power", "loss.edge_contrast", "optim.lr_net", "data.view_pool"}
     assert {k for k, _, _ in differences(preset("small", "of_unit"), preset("cpu", "of_unit"))} >= {"method.vc_start"}
 
 

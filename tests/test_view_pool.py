@@ -54,13 +54,17 @@ def _losses(cfg, scenes, real, out) -> list[dict]:
 def test_cached_pool_trains_like_the_pool_ray_cast_each_time(counted, monkeypatch, train_inputs, tmp_path,
                                                              one_torch_thread):
     """The issue's check: the tiny preset's default view cache gives the loss curve of the same
-    pool ray-cast at every read (same seed, 20 steps). Tolerance: the cache holds the geometry
-    in fp16 (points and depth rounded by at most 2**-12 of their magnitude, 0.03-0.06 mm in this
-    50-200 mm scene; normals by 2**-12), which moves a_ref (rendered from it on a CPU run) by a
-    few 1e-4 and the visibility of pixels within a rounding of the 1 mm occlusion rule; 20 GAN
-    steps carry that to loss terms differing by about 1e-3 relative (measured: at most 2e-3).
-    The bound is 2 % of each term (and 1e-3 absolute for terms near zero); a pose or view
-    mix-up (another pose at an index) moves every term by far more."""
+    pool ray-cast at every read (same seed, 20 steps).
+
+    Tolerance. The cache holds the geometry in fp16: points and depth rounded by at most 2**-12
+    of their magnitude (0.01-0.05 mm in this 50-200 mm scene), normals by 2**-12. On a CPU run
+    that moves a_ref (rendered in the worker from it) by about 1e-4 and flips the visibility of
+    the few pixels within a rounding of the 1 mm occlusion rule, so the first step's loss terms
+    agree within 1e-3 relative (measured: 9e-5). Each GAN step then carries the difference into
+    the weights, where it grows (measured: the median term 1e-5 at step 1, 4e-3 by step 17, the
+    smallest terms, the view-consistency angle of 0.05 rad, up to 8 %); so every later step's
+    median term must agree within 1 %. A pose mix-up (another seed's poses) moved a first-step
+    term by 10 %."""
     scenes, real = train_inputs
     cfg = tiny_config(iterations=STEPS, checkpoint_every=1000, image_every=1000, log_every=1000)
     assert cfg.data.view_pool == 16
@@ -71,13 +75,15 @@ def test_cached_pool_trains_like_the_pool_ray_cast_each_time(counted, monkeypatc
     recast = _losses(cfg, scenes, real, tmp_path / "recast")
     assert len(counted) >= 2 * STEPS  # every view ray-cast again
     assert len(cached) == len(recast) == STEPS
-    worst = 0.0
-    for a, b in zip(cached, recast):
+    medians = []
+    for step, (a, b) in enumerate(zip(cached, recast)):
         assert a.keys() == b.keys()
-        for k in a:
-            assert abs(a[k] - b[k]) <= 0.02 * abs(b[k]) + 1e-3, (k, a[k], b[k])
-            worst = max(worst, abs(a[k] - b[k]) / max(abs(b[k]), 1e-3))
-    assert worst > 0  # fp16 geometry is not bit for bit fp32: the two runs did use different data paths
+        rel = [abs(a[k] - b[k]) / max(abs(b[k]), 1e-3) for k in a]
+        if step == 0:
+            assert max(rel) <= 1e-3, (a, b)
+        medians.append(float(np.median(rel)))
+    assert max(medians) <= 1e-2, medians
+    assert max(medians) > 0  # fp16 geometry is not fp32: the two runs did take different data paths
 
 
 def test_second_run_reads_the_pool_without_ray_casting(counted, train_inputs, tmp_path):
