@@ -17,9 +17,21 @@ stage              what is timed (median over ``--samples``)
 ``pack``           the sample's tensors in their transfer dtypes (view_inputs + compact)
 ``collate``        default_collate of one sample (the loader's batch of 1)
 ``to_device``      copy to ``--device``, widen and render both a_ref there (pinned source on CUDA)
+``pool_build``     building a view pool, per view: its pose, ray casting, the write into the
+                   memory-mapped file (data/viewpool.py; once per scene, up front)
+``pool_read``      reading one pooled view back from the memory-mapped file and widening it
 ``sample``         one whole ``TrainPairs`` sample (two views, redraws of j below the overlap,
-                   a real crop), fresh poses or cached views (a views folder read from disk)
+                   a real crop): fresh poses, the view pool (the default of the GPU presets),
+                   or a views folder read from disk
 =================  ==============================================================================
+
+Whole samples, three ways for a bare scene folder: ``fresh`` (``data.view_pool=0``: two poses
+ray-cast per sample), ``pooled_cached`` (the pool's file built; every later epoch and run) and
+``pooled_first_epoch`` (the same plus the pool's build shared by the samples of its first epoch:
+N views make N/2 pairs, so each first-epoch sample carries two views' build). The pool's views
+are read with the file in the page cache (``pooled_cached``) and again after evicting it
+(``pooled_cold``, ``posix_fadvise(DONTNEED)``: every view read from disk). ``disk`` gives the bytes
+per pooled view and per pool of ``--pool-views`` and of the presets' 3,000.
 
 ``worker_pair_s`` sums a worker's stages of one pair (2 x pose and raycast; correspondences;
 real; pack; collate); ``per_core_samples_per_s`` is ``1 / sample`` median; ``host_16_cores_samples_per_s``
@@ -27,12 +39,13 @@ extrapolates it linearly to 15 loader workers (16 cores, one kept for the traini
 rule ``sim2real.threads.worker_count`` applies. ``bytes_per_sample`` is what crosses shared memory
 and the host-to-device copy.
 
-Usage: python benchmarks/bench_data.py [--samples 20] [--device cpu|cuda] [--loader-workers N]
+Usage: python benchmarks/bench_data.py [--samples 20] [--pool-views 40] [--device cpu|cuda] [--loader-workers N]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -48,11 +61,14 @@ from PIL import Image
 from threadpoolctl import threadpool_limits
 from torch.utils.data import default_collate
 
+import sim2real.data.viewpool
+
 from sim2real.data.datasets import StepSampler, TrainPairs, resolve_scenes
 from sim2real.data.real import RealImages, load_rgb, random_resized_crop
 from sim2real.data.tensors import compact, complete_on_device, view_inputs, widen
 from sim2real.data.views import write_views_manifest
-from sim2real.presets import preset
+from sim2real.data.viewpool import GBUFFERS, attach_view_pools, bytes_per_view, open_pool
+from sim2real.presets import POOL_VIEWS, preset
 from sim2real.render.raycast import RayCaster
 from sim2real.render.reference import reference_rendering
 from sim2real.render.warp import correspondences
@@ -141,18 +157,64 @@ def stages(scene: Path, real: Path, cfg, n: int, device: torch.device) -> dict:
     return out
 
 
-def whole_samples(path: Path, real: Path, cfg, n: int) -> dict:
-    ds = TrainPairs(resolve_scenes([path], cfg.height, cfg.width), RealImages(real), cfg, seed=0)
+def rates(times: list[float], extra_s: float = 0.0) -> dict:
+    """Per-core and 16-core figures of per-sample CPU seconds ``times`` (plus ``extra_s`` each)."""
+    med, mean = statistics.median(times) + extra_s, statistics.mean(times) + extra_s
+    return {"cpu_s_per_sample_median": round(med, 4), "cpu_s_per_sample_mean": round(mean, 4),
+            "per_core_samples_per_s": round(1 / med, 2),
+            f"host_{HOST_CORES}_cores_samples_per_s": round((HOST_CORES - 1) / mean, 1)}
+
+
+def sample_times(sources, real: Path, cfg, n: int, before_each=None) -> list[float]:
+    ds = TrainPairs(sources, RealImages(real), cfg, seed=0)
     ds[0]
     times = []
     for s in range(1, n + 1):
+        if before_each is not None:
+            before_each()
         t = time.process_time()
         ds[s]
         times.append(time.process_time() - t)
-    med = statistics.median(times)
-    return {"cpu_s_per_sample_median": round(med, 4), "cpu_s_per_sample_mean": round(statistics.mean(times), 4),
-            "per_core_samples_per_s": round(1 / med, 2),
-            f"host_{HOST_CORES}_cores_samples_per_s": round((HOST_CORES - 1) / statistics.mean(times), 1)}
+    return times
+
+
+def whole_samples(path: Path, real: Path, cfg, n: int) -> dict:
+    return rates(sample_times(resolve_scenes([path], cfg.height, cfg.width), real, cfg, n))
+
+
+def evict(path: Path) -> None:
+    """Drop ``path``'s clean pages from the page cache: the next reads come from the disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+    finally:
+        os.close(fd)
+
+
+def pooled(scene: Path, real: Path, cfg, n: int, views: int) -> dict:
+    """Build a view pool of ``views`` views in this process (CPU time per view), then time samples
+    drawn from it: warm, cold, and with the build shared by the first epoch."""
+    cfg = dataclasses.replace(cfg, view_pool=views)
+    s = Scene.load(scene)
+    t = time.process_time()
+    pool = open_pool(scene, s, cfg, seed=0, progress=False)
+    build_s = (time.process_time() - t) / views
+    sources = resolve_scenes([scene], cfg.height, cfg.width)
+    attach_view_pools(sources, cfg, 0, progress=False)
+    read_s = median_s(lambda: pool.view(int(np.random.default_rng().integers(views))), n)
+    warm = sample_times(sources, real, cfg, n)
+    file = pool.folder / GBUFFERS
+    cold = sample_times(sources, real, cfg, n, before_each=lambda: evict(file))
+    size = sum(p.stat().st_size for p in pool.folder.iterdir())
+    return {"views": views, "pool_build_s_per_view": round(build_s, 5), "pool_read_s_per_view": round(read_s, 5),
+            "pooled_cached": rates(warm), "pooled_cold": rates(cold),
+            "pooled_first_epoch": rates(warm, extra_s=2 * build_s),
+            "disk": {"bytes_per_view": bytes_per_view(cfg.height, cfg.width),
+                     "measured_bytes_per_view": round(size / views),
+                     f"bytes_per_pool_of_{views}": size,
+                     f"bytes_per_pool_of_{POOL_VIEWS}": POOL_VIEWS * bytes_per_view(cfg.height, cfg.width),
+                     f"GiB_per_pool_of_{POOL_VIEWS}": round(POOL_VIEWS * bytes_per_view(cfg.height, cfg.width) / 2**30, 2),
+                     "views_folder_bytes_per_view": None}}
 
 
 def loader_rate(path: Path, real: Path, cfg, workers: int, n: int) -> float:
@@ -172,18 +234,28 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=20)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--loader-workers", type=int, default=0, help="also time a DataLoader with this many workers")
+    ap.add_argument("--pool-views", type=int, default=40, help="views of the view pool that is built and timed")
     args = ap.parse_args()
     torch.set_num_threads(1)
     cfg = preset(args.preset).data
+    sim2real.data.viewpool.worker_count = lambda jobs=None, reserve=0: 1  # built in this process: its CPU time counts
     result = {"benchmark": "train_data", "preset": args.preset, "size": f"{cfg.height}x{cfg.width}",
               "machine": f"{platform.machine()} {os.cpu_count()} cores", "usable_cores": usable_cores(),
               "torch": str(torch.__version__), "device": args.device, "real_frames": "854x480 JPEG"}
     with tempfile.TemporaryDirectory(prefix="bench_data_") as tmp, threadpool_limits(1):
+        os.environ["SIM2REAL_CACHE"] = str(Path(tmp) / "cache")  # the pools it builds go with it, not into the user's cache
         scene, real, views = make_inputs(Path(tmp), cfg.height, cfg.width, max(8, args.samples))
         result["stages_s"] = stages(scene, real, cfg, args.samples, torch.device(args.device))
         print(json.dumps(result["stages_s"]), file=sys.stderr)
         result["fresh_views"] = whole_samples(scene, real, cfg, args.samples)
+        print(json.dumps(result["fresh_views"]), file=sys.stderr)
+        result["view_pool"] = pooled(scene, real, cfg, args.samples, args.pool_views)
+        result["view_pool"]["disk"]["views_folder_bytes_per_view"] = round(
+            statistics.mean(p.stat().st_size for p in views.glob("view_*.npz")))
         result["cached_views"] = whole_samples(views, real, cfg, args.samples)
+        fresh = result["fresh_views"]["per_core_samples_per_s"]
+        result["pooled_vs_fresh_per_core"] = {k: round(result["view_pool"][k]["per_core_samples_per_s"] / fresh, 2)
+                                              for k in ("pooled_cached", "pooled_first_epoch", "pooled_cold")}
         if args.loader_workers:
             result["loader_samples_per_s"] = {"workers": args.loader_workers,
                                               "fresh_views": loader_rate(scene, real, cfg, args.loader_workers,
