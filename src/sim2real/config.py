@@ -146,7 +146,9 @@ class DataConfig:
     (data/triplets.py)."""
     min_overlap: float = 0.1
     """Fraction of view i's pixels that must be visible in view j; below it view j is redrawn,
-    view i kept (up to 10 draws; then the j with the largest overlap is used)."""
+    view i kept (up to 10 draws; then the j with the largest overlap is used). Judged on a grid of
+    at least 8,192 of view i's pixels (every 4th pixel of every 4th row at 256x512;
+    data/pairs.py)."""
     view_pool: int = 0
     """Views per bare scene folder in ``--scenes``: N > 1 draws every training view from a fixed
     pool of N random poses per scene, ray-cast once before the first step into a memory-mapped
