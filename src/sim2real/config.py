@@ -139,7 +139,8 @@ class DataConfig:
     (``sim2real.threads.worker_count``): the CPU cores this process may use, shared evenly among
     the ranks of its node, less one for the training process itself, at least 1, no fixed cap
     (fewer where ``/dev/shm`` cannot hold their samples, data/shm.py). One core makes 6.6
-    paper-size samples/s from fresh ray casts and 17.5 from cached views (CPU time,
+    paper-size samples/s from fresh ray casts, 17.5 from cached views and about 15 from a view
+    pool (CPU time,
     benchmarks/bench_data.py, docs/gpu.md)."""
     path_step_mm: float = 0.5
     """Camera motion per frame (mm) of the short linear paths that the video methods train on
