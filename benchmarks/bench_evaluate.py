@@ -132,6 +132,8 @@ def main() -> None:
     ap.add_argument("--save", default=None, help="write the evaluation's figures to this JSON file")
     ap.add_argument("--against", default=None, help="compare the figures with this file (from --save)")
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="threads of the evaluation's jobs (default: one per core of this process's share)")
     ap.add_argument("--profile", default=None, help="also write cProfile statistics of the evaluation to this file")
     args = ap.parse_args()
 
@@ -143,6 +145,12 @@ def main() -> None:
     wall: dict = {}
     cpu: dict = {}
     probes = install_probes(wall, cpu)
+    if args.threads:  # as on a machine with that many cores (the ray casting keeps its own rule)
+        for mod, attr, fn in (("sim2real.inference.jobs", "worker_count", lambda jobs=None: args.threads),
+                              ("sim2real.inference.dice", "usable_cores", lambda: args.threads)):
+            m = importlib.import_module(mod)
+            if hasattr(m, attr):
+                setattr(m, attr, fn)
     ev = importlib.import_module("sim2real.inference.evaluate")
     known = {f.name for f in dataclasses.fields(ev.EvalSettings)}
     s = ev.EvalSettings(**{k: v for k, v in old["settings"].items() if k in known})
@@ -169,6 +177,7 @@ def main() -> None:
         "stages": stages,
         "measures_wall_s": {k: round(v, 2) for k, v in sorted(wall.items())},
         "measures_cpu_s": {k: round(v, 2) for k, v in sorted(cpu.items()) if not k.startswith("stage_")},
+        "threads": args.threads,
         "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "platform": platform.platform(),
         "python": sys.version.split()[0],

@@ -32,7 +32,7 @@ from sim2real.inference.rows import PAPER_KS, calibration, pool_rows, positions,
 from sim2real.inference.video import write_video
 from sim2real.metrics.consistency import orb_settings_for
 from sim2real.metrics.odometry import MIN_INLIERS, SUCCESS_DEG, odometry, odometry_orb, summarise as odo_summarise
-from sim2real.metrics.realism import fid_kid, proxy_colour_texture_distance
+from sim2real.metrics.realism import fid_kid, proxy_colour_texture_distance, proxy_stats
 from sim2real.metrics.twosample import RANDOM_NET_SEED, RandomFeatures, c2st, random_kid
 from sim2real.render.motion import MotionMeter
 from sim2real.render.reference import reference_rendering, to_uint8
@@ -151,8 +151,9 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
                 if bad:
                     reason = f"{', '.join(bad)} not finite (too few images for a {r['num_features']}-d covariance?)"
     proxy = None
+    real_stats = proxy_stats(real_t)  # once for every row
     for row in rows_shown:
-        p = proxy_colour_texture_distance(to_nchw(vs.scored[row]), real_t)
+        p = proxy_colour_texture_distance(to_nchw(vs.scored[row]), real_t, real_stats=real_stats)
         if row == "model":
             proxy = p
         realism[row]["proxy"] = p["proxy_colour_texture_distance"]
