@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import threading
 
 from threadpoolctl import threadpool_limits
 
@@ -66,6 +67,11 @@ def single_thread_worker(*_args) -> None:
     threadpool_limits(limits=1)
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
+
+
+TORCH_RNG_LOCK = threading.Lock()
+"""Held while a network is initialised from torch's global generator (``fork_rng`` and
+``manual_seed``): networks trained in parallel threads must not draw from each other's seed."""
 
 
 @contextlib.contextmanager

@@ -95,8 +95,12 @@ def side_by_side(png: Path, runs: dict[str, Path], scene_dir: Path, trajectory: 
     for name, run in runs.items():
         model = load_run(run, device=device)
         seq = model.sequence(scene.name)
+        if model.time_independent:  # a frame depends on its own view only: the shown views suffice
+            shown = seq.translate([gbuffers[v] for v in views])
+            rows[name] = shown + [shown[0]]
+            continue
         forward = seq.translate(gbuffers)
-        revisit = forward[0] if model.time_independent else seq.translate(gbuffers[::-1])[-1]
+        revisit = seq.translate(gbuffers[::-1])[-1]
         rows[name] = [forward[v] for v in views] + [revisit]
     h, w = rows["a_ref"][0].shape[:2]
     grid = tile([[_label(name, h, w), *imgs] for name, imgs in rows.items()])

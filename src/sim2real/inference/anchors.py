@@ -20,6 +20,7 @@ all that "a new appearance every frame" means to the metrics.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import replace
 from pathlib import Path
 
@@ -41,17 +42,33 @@ class Anchors:
         self.pool = max(1, int(pool))
         self.options = options or RenderOptions()
         self._materials: dict[int, SceneMaterial] = {}
+        self._lock = threading.Lock()
+        self._first: dict[int, threading.Lock] = {}
 
     def _material(self, key: int) -> SceneMaterial:
         """Key -1: the ceiling's appearance; 0..pool-1: the floor's."""
-        if key not in self._materials:
-            tag = (_CEILING,) if key < 0 else (_FLOOR, key)
-            self._materials[key] = SceneMaterial(self.scene, Appearance.sample(derive_seed(self.seed, *tag)))
-        return self._materials[key]
+        with self._lock:
+            if key not in self._materials:
+                tag = (_CEILING,) if key < 0 else (_FLOOR, key)
+                self._materials[key] = SceneMaterial(self.scene, Appearance.sample(derive_seed(self.seed, *tag)))
+                self._first[key] = threading.Lock()
+            return self._materials[key]
 
     def _render(self, g: GBuffer, key: int, index: int) -> np.ndarray:
+        """Thread-safe: a material's fields are built on its first frames, so a thread rendering an
+        appearance for the first time holds that appearance's lock and the others wait for it
+        (instead of building the same fields again); the frames are the same in any order."""
         opt = replace(self.options, height=g.height, width=g.width)
-        return render_frame(g, self._material(key), opt, derive_seed(self.seed, _NOISE, int(index))).image
+        material = self._material(key)
+        seed = derive_seed(self.seed, _NOISE, int(index))
+        first = self._first.get(key)
+        if first is not None:
+            with first:
+                if key in self._first:
+                    image = render_frame(g, material, opt, seed).image
+                    del self._first[key]
+                    return image
+        return render_frame(g, material, opt, seed).image
 
     def ceiling(self, g: GBuffer, index: int) -> np.ndarray:
         """The stand-in with the ceiling's one appearance; ``index`` seeds the sensor noise."""

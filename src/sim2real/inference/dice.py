@@ -35,10 +35,11 @@ import PIL
 import torch
 
 from sim2real.fileio import atomic_write_bytes, atomic_write_json, cache_root
+from sim2real.inference.jobs import Jobs
 from sim2real.inference.realimages import fit_image, load_segmentation_set
 from sim2real.metrics.realism import dice as dice_score
 from sim2real.metrics.segmenter import LiverUNet, predict, train_segmenter
-from sim2real.threads import one_torch_thread
+from sim2real.threads import one_torch_thread, usable_cores
 
 CACHE_FORMAT = "sim2real-segmenter-cache/2"
 
@@ -79,39 +80,41 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
     tr, ho = split(len(labelled), s.seg_holdout, s.seed)
     key = cache_key(labelled, spec)
     folder = cache_root() / "segmenters" / key
-    models, per_seed = [], []
+    loaded: dict[int, tuple] = {}
     for k in range(s.seg_seeds):
         seed = s.seed + k
         f = folder / f"seed_{seed}.pt"
-        model = None
         if f.is_file():
             try:
                 blob = torch.load(f, map_location="cpu", weights_only=True)
                 model = LiverUNet(16, 3)
                 model.load_state_dict(blob["state_dict"])
-                model = model.to(device).eval()
-                meta = json.loads(blob["meta"])
+                loaded[seed] = (model.to(device).eval(), {**json.loads(blob["meta"]), "cached": True})
             except Exception:  # a damaged cache entry is retrained, not trusted
-                model = None
-        if model is None:
-            say(f"Dice: training liver U-Net seed {seed} on {len(tr)} labelled real images "
-                f"(held out: {len(ho)}; at most {s.seg_iterations} steps)")
-            hist: list = []
-            with one_torch_thread():
-                model = train_segmenter(x[tr], y[tr], s.seg_iterations, device="cpu", seed=seed, batch_size=s.seg_batch,
-                                        crops=True, val=(x[ho], y[ho]), check_every=s.seg_check_every, history=hist,
-                                        progress=progress, early_stop=False)
-            model = model.to(device)
-            meta = {"seed": seed, "history": hist, "steps": s.seg_iterations}
-
-            buf = io.BytesIO()
-            torch.save({"state_dict": {k2: v.cpu() for k2, v in model.state_dict().items()}, "meta": json.dumps(meta)}, buf)
-            atomic_write_bytes(f, buf.getvalue())
-            atomic_write_json(folder / "spec.json", {"format": CACHE_FORMAT, "spec": spec,
-                                                     "images": [str(p[0]) for p in labelled]})
-            meta["cached"] = False
-        else:
-            meta["cached"] = True
+                pass
+    missing = [s.seed + k for k in range(s.seg_seeds) if s.seed + k not in loaded]
+    if missing:
+        say(f"Dice: training {len(missing)} liver U-Nets (seeds {', '.join(map(str, missing))}) on {len(tr)} labelled "
+            f"real images (held out: {len(ho)}; {s.seg_iterations} steps each)")
+        # each on one torch thread (held here for all of them), the seeds in parallel threads: a
+        # segmenter's steps run alone on its thread, so its weights are those of a sequential run
+        workers = min(len(missing), 2 * usable_cores()) if usable_cores() > 1 else 1
+        with one_torch_thread(), Jobs(workers) as jobs:
+            trained = {seed: jobs.submit(_train, x, y, tr, ho, s, seed, progress and workers == 1) for seed in missing}
+            for seed, job in trained.items():
+                model, hist = job.result()
+                model = model.to(device)
+                meta = {"seed": seed, "history": hist, "steps": s.seg_iterations}
+                buf = io.BytesIO()
+                torch.save({"state_dict": {k2: v.cpu() for k2, v in model.state_dict().items()},
+                            "meta": json.dumps(meta)}, buf)
+                atomic_write_bytes(folder / f"seed_{seed}.pt", buf.getvalue())
+                atomic_write_json(folder / "spec.json", {"format": CACHE_FORMAT, "spec": spec,
+                                                         "images": [str(p[0]) for p in labelled]})
+                loaded[seed] = (model, {**meta, "cached": False})
+    models, per_seed = [], []
+    for k in range(s.seg_seeds):
+        model, meta = loaded[s.seed + k]
         meta["held_out_dice"] = dice_score(predict(model, x[ho]), y[ho])
         meta["train_dice"] = dice_score(predict(model, x[tr]), y[tr])
         models.append(model)
@@ -120,6 +123,15 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
             "cache": str(folder), "spec": spec, "per_seed": per_seed,
             "held_out_dice": summarise([m["held_out_dice"] for m in per_seed], s.seg_max_spread)}
     return models, info
+
+
+def _train(x, y, tr, ho, s, seed: int, progress: bool):
+    """One segmenter, deterministically (module docstring): (model on the CPU, validation history)."""
+    hist: list = []
+    model = train_segmenter(x[tr], y[tr], s.seg_iterations, device="cpu", seed=seed, batch_size=s.seg_batch,
+                            crops=True, val=(x[ho], y[ho]), check_every=s.seg_check_every, history=hist,
+                            progress=progress, early_stop=False)
+    return model, hist
 
 
 def summarise(values: Sequence[float], max_spread: float) -> dict:

@@ -25,18 +25,20 @@ from sim2real.fileio import atomic_write_image, atomic_write_json
 from sim2real.grid import tile
 from sim2real.inference.dice import dice_of, segmenters  # torch-heavy training code, only with labels
 from sim2real.inference.frames import chunked, iter_gbuffers
+from sim2real.inference.jobs import Jobs, results
 from sim2real.inference.realimages import fit_image, to_nchw
 from sim2real.inference.report import write_report
 from sim2real.inference.rows import PAPER_KS, calibration, pool_rows, positions, scalars, sequence_row
 from sim2real.inference.video import write_video
 from sim2real.metrics.consistency import orb_settings_for
 from sim2real.metrics.odometry import MIN_INLIERS, SUCCESS_DEG, odometry, odometry_orb, summarise as odo_summarise
-from sim2real.metrics.realism import fid_kid, proxy_colour_texture_distance
+from sim2real.metrics.realism import fid_kid, proxy_colour_texture_distance, proxy_stats
 from sim2real.metrics.twosample import RANDOM_NET_SEED, RandomFeatures, c2st, random_kid
 from sim2real.render.motion import MotionMeter
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.render.warp import flow as gt_flow
 from sim2real.scene.trajectory import make_trajectory, sample_poses
+from sim2real.threads import one_torch_thread
 
 VIEW_INDEX0 = 100_000
 """Anchor frame index (which seeds the sensor noise and picks the floor's appearance) of the first
@@ -83,6 +85,7 @@ def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, re
     views: dict[str, list] = {r: [] for r in rows_shown}
     liver: list[np.ndarray] = []
     bar = tqdm(total=sum(counts), desc="views", unit="view", disable=not progress)
+    jobs = Jobs()  # the ceiling and the floor shade in threads while the model translates
     for k, ((sc, d), n) in enumerate(zip(scenes, counts)):
         if n == 0:
             continue
@@ -97,9 +100,13 @@ def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, re
                 liver.append(g.class_index() == 0)
                 views["a_ref"].append(to_uint8(reference_rendering(g)))
                 if sc.name in anchors:
-                    views["ceiling"].append(anchors[sc.name].ceiling(g, i))
-                    views["floor"].append(anchors[sc.name].floor(g, i))
+                    views["ceiling"].append(jobs.submit(anchors[sc.name].ceiling, g, i))
+                    views["floor"].append(jobs.submit(anchors[sc.name].floor, g, i))
             bar.update(len(chunk))
+    for row in ("ceiling", "floor"):
+        if row in views:
+            views[row] = results(views[row])
+    jobs.close()
     bar.close()
     # a method with several translations per view (styles) is scored on all of them; the first is
     # the one shown beside the other rows
@@ -144,8 +151,9 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
                 if bad:
                     reason = f"{', '.join(bad)} not finite (too few images for a {r['num_features']}-d covariance?)"
     proxy = None
+    real_stats = proxy_stats(real_t)  # once for every row
     for row in rows_shown:
-        p = proxy_colour_texture_distance(to_nchw(vs.scored[row]), real_t)
+        p = proxy_colour_texture_distance(to_nchw(vs.scored[row]), real_t, real_stats=real_stats)
         if row == "model":
             proxy = p
         realism[row]["proxy"] = p["proxy_colour_texture_distance"]
@@ -157,6 +165,10 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
         for row in rows_shown:
             realism[row][name] = m["rows"].get(row)
     return {"rows": realism, "fid": fid, "fid_info": fid_info, "proxy": proxy, "reason": reason, "measures": measures}
+
+
+def device_type(device) -> str:
+    return getattr(device, "type", str(device).split(":")[0])
 
 
 def weight_free_realism(scored: dict[str, list], real_imgs: Sequence[np.ndarray], s, rows_shown: Sequence[str],
@@ -192,14 +204,20 @@ def weight_free_realism(scored: dict[str, list], real_imgs: Sequence[np.ndarray]
             continue
         say(f"realism: {name} of {len(sets)} rows against {len(ref)} real images")
         t0 = time.perf_counter()
-        net = RandomFeatures(RANDOM_NET_SEED).to(device) if name == "random_kid" else None
-        for row, frames in sets.items():
-            if name == "random_kid":
+        if name == "random_kid":
+            net = RandomFeatures(RANDOM_NET_SEED).to(device)
+            for row, frames in sets.items():
                 entry["rows"][row] = random_kid(frames, ref, net=net, device=device)
-            else:
-                r = c2st(frames, ref, seed=s.seed, steps=s.c2st_steps, device=device)
-                entry["rows"][row] = r["auc"]
-                entry["details"][row] = r
+        else:
+            # one test per row, each on one torch thread (held here for all of them), in parallel
+            # threads: each row's classifier is seeded alike and trains alone, so the figures are
+            # those of one thread
+            with one_torch_thread(), Jobs(None if device_type(device) == "cpu" else 1) as jobs:
+                tests = {row: jobs.submit(c2st, frames, ref, seed=s.seed, steps=s.c2st_steps, device=device)
+                         for row, frames in sets.items()}
+                for row, f in tests.items():
+                    entry["rows"][row] = f.result()["auc"]
+                    entry["details"][row] = f.result()
         entry["seconds"] = time.perf_counter() - t0
     return out
 
@@ -284,6 +302,7 @@ def sequence_metrics(model, scene: str, scene_dir: Path, cameras, caster, anchor
     meter = MotionMeter()
     prev = None
     bar = tqdm(total=T, desc=f"sequence {scene}", unit="frame", disable=not progress)
+    jobs = Jobs()  # the ceiling and the floor shade in threads while the model translates
     seq = model.sequence(scene, s.batch)
     for chunk in chunked(iter_gbuffers(scene_dir, cameras, s.workers, s.batch, caster=caster), s.batch):
         for g, f in zip(chunk, seq.translate(chunk)):
@@ -296,8 +315,8 @@ def sequence_metrics(model, scene: str, scene_dir: Path, cameras, caster, anchor
             frames["model"].append(f)
             frames["a_ref"].append(to_uint8(reference_rendering(g)))
             if anchors is not None:
-                frames["ceiling"].append(anchors.ceiling(g, t))
-                frames["floor"].append(anchors.floor(g, t))
+                frames["ceiling"].append(jobs.submit(anchors.ceiling, g, t))
+                frames["floor"].append(jobs.submit(anchors.floor, g, t))
             points.append(np.asarray(g.points, dtype=np.float32))
             masks.append(g.mask)
             poses.append(g.world_to_camera)
@@ -311,23 +330,43 @@ def sequence_metrics(model, scene: str, scene_dir: Path, cameras, caster, anchor
         for chunk in chunked(iter_gbuffers(scene_dir, cameras[::-1], s.workers, s.batch, caster=caster), s.batch):
             backward.extend(seq.translate(chunk))
         frames["model_backward"] = backward
-    rows, ceiling_est = {}, None
-    for row in ("ceiling",) + tuple(r for r in rows_shown if r != "ceiling"):
+    for row in ("ceiling", "floor"):
         if row in frames:
-            rows[row], est = sequence_row(frames[row], points, masks, flows, valids, ks, s.threshold_mm, orb, ceiling_est,
-                                          revisit=row == "model",  # the anchors reuse their forward pairs
-                                          backward=backward if row == "model" else None)
-            if row == "ceiling":  # against its own flow the ceiling scores 0 by definition
-                ceiling_est = est
-                r = rows["ceiling"]
-                for key in ("of_error", "of_epe"):
-                    r["per_pair"][f"{key}_vs_ceiling"] = [None if e is None else 0.0 for e in r["per_pair"][key]]
-                    r[f"{key}_vs_ceiling"] = None if r[key] is None else 0.0
-    odo = {}
+            frames[row] = results(frames[row])
+    rows, odo = score_rows(jobs, frames, rows_shown, points, masks, flows, valids, poses, K, ks, orb, s, backward)
+    jobs.close()
+    return {"frames": T, "motion": meter.summary(), "rows": rows, "odometry": odo}, frames
+
+
+def score_rows(jobs: Jobs, frames: dict, rows_shown, points, masks, flows, valids, poses, K, ks, orb, s, backward):
+    """The temporal metrics (:func:`sequence_row`) and the odometry of every row, as jobs: the
+    ceiling's first (the others' flows are compared with its Farnebäck flow), with the odometry
+    beside it, then the other rows. Returns (rows, odometry)."""
+    def row_job(row, ceiling_est):
+        # a time-independent video's revisit pairs are its forward pairs (sequence_row): only a
+        # time-dependent method's backward half is scored again
+        return sequence_row(frames[row], points, masks, flows, valids, ks, s.threshold_mm, orb, ceiling_est,
+                            revisit=False, backward=backward if row == "model" else None)
+
+    order = [r for r in ("ceiling",) + tuple(r for r in rows_shown if r != "ceiling") if r in frames]
+    ceiling = jobs.submit(row_job, "ceiling", None) if "ceiling" in frames else None
+    odo_jobs = {}
     if s.odometry_pairs > 0:
         odo_orb = odometry_orb(orb)
-        odo = {row: odometry(frames[row], poses, K, PAPER_KS, odo_orb, s.odometry_pairs) for row in rows_shown}
-    return {"frames": T, "motion": meter.summary(), "rows": rows, "odometry": odo}, frames
+        odo_jobs = {row: jobs.submit(odometry, frames[row], poses, K, PAPER_KS, odo_orb, s.odometry_pairs)
+                    for row in rows_shown}
+    rows, ceiling_est = {}, None
+    if ceiling is not None:
+        rows["ceiling"], ceiling_est = ceiling.result()
+        r = rows["ceiling"]  # against its own flow the ceiling scores 0 by definition
+        for key in ("of_error", "of_epe"):
+            r["per_pair"][f"{key}_vs_ceiling"] = [None if e is None else 0.0 for e in r["per_pair"][key]]
+            r[f"{key}_vs_ceiling"] = None if r[key] is None else 0.0
+    others = {row: jobs.submit(row_job, row, ceiling_est) for row in order if row != "ceiling"}
+    for row, f in others.items():
+        rows[row] = f.result()[0]
+    rows = {row: rows[row] for row in order}
+    return rows, {row: f.result() for row, f in odo_jobs.items()}
 
 
 # --- report --------------------------------------------------------------------------------------

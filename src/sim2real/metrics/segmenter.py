@@ -27,6 +27,7 @@ from torch import Tensor, nn
 from tqdm import tqdm
 
 from sim2real.metrics.realism import dice as dice_score
+from sim2real.threads import TORCH_RNG_LOCK
 
 
 def _block(cin: int, cout: int) -> nn.Sequential:
@@ -105,7 +106,7 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
     if iterations < 0:
         raise ValueError("iterations must be >= 0")
     device = torch.device(device) if device is not None else images.device
-    with torch.random.fork_rng(devices=[]):  # seeded initialisation, caller's RNG untouched
+    with TORCH_RNG_LOCK, torch.random.fork_rng(devices=[]):  # seeded initialisation, caller's RNG untouched
         torch.manual_seed(seed)
         model = LiverUNet(base_channels=base_channels, depth=depth)
     model = model.to(device)

@@ -24,7 +24,7 @@ from scipy import stats
 from torch import nn
 from torch.nn import functional as F
 
-from sim2real.threads import one_torch_thread
+from sim2real.threads import TORCH_RNG_LOCK, one_torch_thread
 
 RANDOM_NET_SEED = 20230207
 """Seed of the random feature network's weights (fixed: part of the measure's definition)."""
@@ -185,9 +185,12 @@ def c2st(gen: Sequence[np.ndarray], real: Sequence[np.ndarray], seed: int = 0, s
     g_tr, g_te, r_tr, r_te = g[:half], g[half:], r[:half], r[half:]
     t = min(len(g_te), len(r_te))
     g_te, r_te = g_te[:t], r_te[:t]
-    with torch.random.fork_rng(devices=[]), one_torch_thread():
-        torch.manual_seed(seed)
-        net = C2STNet().to(device)
+    with one_torch_thread():
+        # only the initialisation draws from torch's global generator (the crops and batches come
+        # from rng): held under the lock, so that tests of several rows can train in threads
+        with TORCH_RNG_LOCK, torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            net = C2STNet().to(device)
         opt = torch.optim.Adam(net.parameters(), lr=lr)
         b = max(1, batch // 2)
         target = torch.cat([torch.ones(b), torch.zeros(b)]).to(device)
