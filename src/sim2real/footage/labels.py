@@ -7,13 +7,13 @@ holds either a class id per pixel (single channel, or grey stored as RGB) or a c
 does: a JSON object from the dataset's class ids (``"21"``) or colours (``"#ff7272"``) to class
 names of the class table (:data:`sim2real.scene.classes.DEFAULT_CLASSES`: the paper's five,
 stomach, duodenum, ..., instrument, vessel, bladder, diaphragm; ``--class-table FILE`` adds the
-user's own) or null for ids and colours to ignore. For CholecSeg8k's class ids (its own
-documentation has the full list of 13), for example::
+user's own) or null for ids and colours to ignore, e.g. for masks of class ids
+``{"1": "liver", "2": "gallbladder", "7": "instrument", "0": null}`` and for CholecSeg8k's colour
+masks (docs/footage.md has its full map)::
 
-    {"21": "liver", "12": "fat", "25": "ligament", "11": "abdominal_wall", "5": "gallbladder",
-     "31": "instrument", "32": "instrument", "50": null}
+    {"#ff7272": "liver", "#ffa0a5": "gallbladder", "#aaff00": "instrument", "#a9ffb8": "instrument",
+     "#7f7f7f": null}
 
-and for its colour masks ``{"#ff7272": "liver", "#ffa0a5": "gallbladder", "#aaff00": "instrument", ...}``.
 Mapped pixels take the class's label id in the table (liver 0, ..., gallbladder 4, stomach 5, ...);
 ids and colours not in the map, and pixels outside the content area, become 255 (background).
 """
