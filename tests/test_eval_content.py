@@ -14,7 +14,7 @@ from sim2real.cli.main import main
 from sim2real.data.cover import fit_image, resize_box
 from sim2real.data.real import load_rgb
 from sim2real.errors import UserError
-from sim2real.inference.realimages import ContentWindows, find_real
+from sim2real.inference.realimages import ContentWindows, RealSet, find_real
 from sim2real.metrics.twosample import c2st
 
 SH, SW = 96, 128  # source frames
@@ -94,10 +94,9 @@ def test_c2st_sees_tissue_not_the_surround(realset):
 def test_a_mask_of_another_size_is_one_error_line(realset, tmp_path):
     rs = find_real(realset[0])
     Image.fromarray(np.full((10, 10), 255, np.uint8)).save(tmp_path / "small.png")
-    rs.masks[0] = tmp_path / "small.png"
-    rs.__post_init__()
+    bad = RealSet(rs.root, rs.label_root, rs.images[:1], rs.labels[:1], [tmp_path / "small.png"])
     with pytest.raises(UserError, match="content mask .* is 10x10 but its image is"):
-        rs.frames(rs.images[:1], EH, EW)
+        bad.frames(bad.images, EH, EW)
 
 
 def test_plain_folder_frames_are_used_whole(tmp_path):

@@ -114,8 +114,8 @@ def test_segmenters_learn_every_class_the_scene_shares(labelled_set, tmp_path, m
     vs = ViewSet({"model": frames, "a_ref": frames}, {"model": frames, "a_ref": frames}, ["default"],
                  [v == 0 for v in views], views)
     seg = segmentation_stage(rs, vs, s, "cpu", ["model", "a_ref"], progress=False, classes=classes)
-    assert seg["info"]["classes"]["fat"]["model"] == pytest.approx(d["fat"]["value"])
-    assert seg["info"]["classes"]["tumour"] == {"model": None, "a_ref": None}
+    assert seg["info"]["class_dice"]["fat"]["model"] == pytest.approx(d["fat"]["value"])
+    assert seg["info"]["class_dice"]["tumour"] == {"model": None, "a_ref": None}
     assert seg["rows"]["model"] == pytest.approx(d["liver"]["value"])
 
 

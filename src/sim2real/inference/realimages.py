@@ -39,8 +39,8 @@ class RealSet:
     masks: list[Path | None] = field(default_factory=list)
     """Content mask file of each image (a real set), or empty (a plain folder: images used whole)."""
     label_classes: dict | None = None
-    """The class table of a real set's labels (its manifest's ``label_classes``), or None: the
-    paper's five classes with their ids."""
+    """The class table of a real set's labels (its manifest's ``label_classes``), or None for
+    labels without one (the stand-in's: the paper's five ids; the segmenters learn the liver alone)."""
 
     @property
     def labelled(self) -> list[tuple[Path, Path]]:
@@ -90,9 +90,10 @@ class ContentWindows:
 def find_real(directory: str | os.PathLike) -> RealSet:
     """Real images and their labels.
 
-    ``DIR/images/`` + ``DIR/labels/`` (the stand-in real domain's layout): every image
-    ``images/REL.ext`` may have ``labels/REL.png``. Otherwise every PNG/JPEG under ``DIR`` is an
-    image (a ``DIR/labels/`` folder is skipped and read as above).
+    A real set (``sim2real realset``): its manifest's frames of both splits, with their labels,
+    content masks and the labels' class table. ``DIR/images/`` + ``DIR/labels/`` (the stand-in
+    real domain's layout): every image ``images/REL.ext`` may have ``labels/REL.png``. Otherwise
+    every PNG/JPEG under ``DIR`` is an image (a ``DIR/labels/`` folder is skipped and read as above).
     """
     root = Path(directory)
     if not root.is_dir():

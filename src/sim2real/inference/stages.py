@@ -215,7 +215,7 @@ def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[st
                        say: Say = lambda m: None, classes: dict[str, int] | None = None) -> dict:
     """Dice of every row (:mod:`sim2real.inference.dice`) against the views' simulated liver, and
     with ``classes`` (name -> label id: those the real labels and the scenes share, the liver
-    first) each class's under ``info["classes"]`` (class -> row -> value).
+    first) each class's under ``info["class_dice"]`` (class -> row -> value).
     Returns ``{"dice": {...}, "info": {...}, "rows": {row: value}, "reason"}``."""
     labelled = real_set.labelled
     dice = {"dice": None, "dice_a_ref": None, "dice_real_train": None, "dice_real_held_out": None, "dice_ceiling": None}
@@ -244,7 +244,7 @@ def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[st
                 dice_ceiling=info["rows"].get("ceiling", {}).get("value"))
     if classes is not None and len(classes) > 1:
         per_row = {row: class_dice(segs, vs.scored[row], vs.labels, classes, s) for row in rows_shown}
-        info["classes"] = {c: {row: (per_row[row][c] or {}).get("value") for row in rows_shown} for c in classes}
+        info["class_dice"] = {c: {row: (per_row[row][c] or {}).get("value") for row in rows_shown} for c in classes}
     reason = info["rows"]["model"]["reason"]  # None when the seeds agree; else their range beside the mean
     return {"dice": dice, "info": info, "rows": values, "reason": reason}
 
