@@ -223,8 +223,19 @@ def _bad(tmp_path: Path, what: str) -> list[str]:
         for i in range(2):
             save(src / f"{i:03d}.png", texture(i))
             save(tmp_path / "labels" / f"{i:03d}.png", np.zeros((H // 2 if what == "label_size" else H, W), np.uint8))
-        (tmp_path / "map.json").write_text(json.dumps({"0": "liver" if what == "label_size" else "spleen"}))
+        (tmp_path / "map.json").write_text(json.dumps({"0": "liver" if what == "label_size" else "tumour"}))
         return [str(src), "--labels", str(tmp_path / "labels"), "--label-map", str(tmp_path / "map.json")]
+    if what in ("colour_labels_id_map", "bad_map_key"):
+        save(src / "000.png", texture(0))
+        lab = np.zeros((H, W, 3), np.uint8)
+        lab[:, :50] = (255, 114, 114)
+        save(tmp_path / "labels" / "000.png", lab)
+        (tmp_path / "map.json").write_text(json.dumps({"21" if what == "colour_labels_id_map" else "red": "liver"}))
+        return [str(src), "--labels", str(tmp_path / "labels"), "--label-map", str(tmp_path / "map.json")]
+    if what == "class_table_alone":
+        save(src / "000.png", texture(0))
+        (tmp_path / "table.json").write_text(json.dumps({"classes": {"tumour": {"a_ref": [0.6, 0.3, 0.3]}}}))
+        return [str(src), "--class-table", str(tmp_path / "table.json")]
     if what == "existing_out":
         save(src / "000.png", texture(0))
         (tmp_path / "real").mkdir()
@@ -234,14 +245,16 @@ def _bad(tmp_path: Path, what: str) -> list[str]:
 
 
 @pytest.mark.parametrize("what", ["corrupt_video", "truncated_mp4", "truncated_mkv", "zero_frames", "not_media",
-                                  "no_frames", "broken_frame", "label_size", "unknown_class", "existing_out"])
+                                  "no_frames", "broken_frame", "label_size", "unknown_class", "existing_out",
+                                  "colour_labels_id_map", "bad_map_key", "class_table_alone"])
 def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, what):
     args = _bad(tmp_path, what)
     expected = {"corrupt_video": "cannot open video", "truncated_mp4": "cannot open video",
                 "truncated_mkv": "is truncated", "zero_frames": "no decodable frames",
                 "not_media": "neither a video", "no_frames": "holds no frames", "broken_frame": "cannot read frame",
-                "label_size": "is 60x200 but its frame is 120x200", "unknown_class": "unknown class 'spleen'",
-                "existing_out": "already exists"}[what]
+                "label_size": "is 60x200 but its frame is 120x200", "unknown_class": "unknown class 'tumour'",
+                "existing_out": "already exists", "colour_labels_id_map": "key it by colour",
+                "bad_map_key": "'red' is neither a class id", "class_table_alone": "--class-table names the classes"}[what]
     before = sorted(p.name for p in tmp_path.iterdir())
     code, io = run_cli(["realset", *args, "--out", str(tmp_path / "real"), "--quiet"], capsys)
     assert code == 2

@@ -2,7 +2,7 @@
 
     sim2real realset SRC [SRC ...] --out REAL [--height H] [--fps F] [--max-frames N]
                      [--held-out FRACTION] [--dup-distance BITS] [--min-content FRACTION]
-                     [--labels DIR --label-map FILE] [--format jpg|png] [--seed S]
+                     [--labels DIR --label-map FILE [--class-table FILE]] [--format jpg|png] [--seed S]
 
 SRC: video files (mp4, avi, mkv, mov, ...; ``VIDEO@START-END`` takes a time range, seconds or
 [h:]mm:ss) and folders of frames (each sub-folder with frames is a source), mixed. Frames are
@@ -50,7 +50,9 @@ def register(sub) -> None:
                    help="sources whose content area is below this share of the frame are dropped (default 0.25)")
     p.add_argument("--labels", default=None, metavar="DIR", help="class-id masks, mirroring the SRC folders' layout")
     p.add_argument("--label-map", default=None, metavar="FILE",
-                   help="JSON: dataset class id -> project class name or null")
+                   help="JSON: dataset class id (\"21\") or colour (\"#ff7272\") -> class name of the class table, or null")
+    p.add_argument("--class-table", default=None, metavar="FILE",
+                   help="class table JSON adding the user's own classes for --label-map (as scene import takes)")
     p.add_argument("--format", choices=("jpg", "png"), default="jpg", help="stored frames (default jpg, quality 95)")
     p.add_argument("--seed", type=int, default=0, help="seed of the held-out choice (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -63,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
 
     settings = Settings(height=args.height, fps=args.fps, max_frames=args.max_frames, held_out=args.held_out,
                         dup_distance=args.dup_distance, min_content=args.min_content, image_format=args.format,
-                        labels=args.labels, label_map=args.label_map, seed=args.seed)
+                        labels=args.labels, label_map=args.label_map, class_table=args.class_table, seed=args.seed)
     m = build_realset(args.sources, args.out, settings, progress=not args.quiet)
     for src in m["sources"]:
         drops = ", ".join(f"{k} {v}" for k, v in src["dropped"].items() if v) or "none"

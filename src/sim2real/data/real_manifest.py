@@ -6,14 +6,14 @@ Layout of a real set::
     REAL/
       manifest.json                 this file's format (below)
       images/SOURCE/NNNNNN.jpg      frames, cropped to the content's box, short side <= height
-      labels/SOURCE/NNNNNN.png      class index per pixel (sim2real.scene.scene.CLASSES order,
+      labels/SOURCE/NNNNNN.png      label id per pixel (the class table's ids, ``label_classes``;
                                     255 = background, unmapped or outside the content area)
       masks/SOURCE.png              content mask of the source's frames (255 = content)
       masks/SOURCE_NNNNNN.png       a frame's own mask, where its view differs from the source's
 
 ``manifest.json``::
 
-    {"format": "sim2real-realset/1", "height": H, "classes": [...],
+    {"format": "sim2real-realset/1", "height": H, "classes": [...], "label_classes": {...} | null,
      "sources": [{"id", "path", "kind": "video"|"frames", "split": "train"|"held_out",
                   "frame_size": [h, w], "box": [top, left, bottom, right], "mask": "masks/ID.png",
                   "content_fraction", "overlay_fraction", "shape", "own_mask_frames", "kept",
@@ -26,6 +26,9 @@ Layout of a real set::
 order); ``time`` is the frame's time in seconds (videos; null for frame folders); ``phash`` the
 64-bit perceptual hash (hex) of the content; ``mask`` the id of the frame's content mask, whose
 file is ``masks/ID.png`` (the source's id, or the frame's own); ``label`` the label file or null.
+``label_classes`` is the class table of the classes the label map names (class -> {"label",
+"a_ref", "palette"}; :mod:`sim2real.scene.classes`), null without labels; ``classes`` their names
+(without labels: the paper's five).
 """
 
 from __future__ import annotations

@@ -32,6 +32,7 @@ from sim2real.data.real_manifest import FORMAT, mask_file, write_manifest
 from sim2real.errors import UserError
 from sim2real.footage import content, filters, labels as labelling
 from sim2real.footage.decode import Source, expected_frames, find_sources, iter_frames
+from sim2real.scene.classes import ClassTable
 from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND
 
 STATS_FRAMES = 100
@@ -53,6 +54,8 @@ class Settings:
     quality: int = 95
     labels: str | None = None
     label_map: str | None = None
+    class_table: str | None = None
+    """A class table file (:mod:`sim2real.scene.classes`) whose classes the label map may name."""
     seed: int = 0
     buffer_mb: int = 1024
 
@@ -79,7 +82,10 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
     check_output(out_path)
     if (s.labels is None) != (s.label_map is None):
         raise UserError("--labels and --label-map go together")
-    lut = labelling.read_label_map(s.label_map) if s.label_map else None
+    if s.class_table is not None and s.label_map is None:
+        raise UserError("--class-table names the classes of --label-map; give it with --labels and --label-map")
+    table = ClassTable.from_file(s.class_table) if s.class_table else ClassTable.defaults()
+    label_map = labelling.read_label_map(s.label_map, table) if s.label_map else None
     label_dir = Path(s.labels) if s.labels else None
     if label_dir is not None and not label_dir.is_dir():
         raise UserError(f"label folder {label_dir} does not exist or is not a directory")
@@ -90,7 +96,7 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
     out_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_path.name}.", dir=out_path.parent))
     try:
-        manifest = _build(sources, splits, tmp, s, lut, label_dir, progress)
+        manifest = _build(sources, splits, tmp, s, label_map, label_dir, progress)
         check_output(out_path)
         if out_path.is_dir():
             out_path.rmdir()
@@ -135,7 +141,7 @@ def _write_image(path: Path, rgb: np.ndarray, fmt: str, quality: int) -> None:
     path.write_bytes(data.tobytes())
 
 
-def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Settings, lut, label_dir,
+def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Settings, label_map, label_dir,
            progress: bool) -> dict:
     frames_out, source_rows = [], []
     dropped_all: Counter = Counter()
@@ -188,7 +194,7 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
             if reason is None and label_dir is not None and fr.file is not None:
                 lp = labelling.label_path(label_dir, fr.file, src.root)
                 if lp is not None:
-                    lab = labelling.load_label(lp, fr.image.shape[:2], lut)
+                    lab = labelling.load_label(lp, fr.image.shape[:2], label_map)
                     lab = np.where(f_area.mask, lab, LABEL_BACKGROUND).astype(np.uint8)
                     lab = cv2.resize(f_area.crop(lab), (w_, h_), interpolation=cv2.INTER_NEAREST)
                     lab[~f_mask] = LABEL_BACKGROUND
@@ -213,7 +219,10 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
                                "label": lab_rel})
     for row in source_rows:
         row["dropped"] = dict(row["dropped"])
-    manifest = {"format": FORMAT, "height": s.height, "classes": list(CLASSES), "label_background": LABEL_BACKGROUND,
+    label_classes = label_map.classes.to_json() if label_map is not None else None
+    manifest = {"format": FORMAT, "height": s.height,
+                "classes": list(label_classes) if label_classes is not None else list(CLASSES),
+                "label_classes": label_classes, "label_background": LABEL_BACKGROUND,
                 "settings": asdict(s), "sources": source_rows, "frames": frames_out,
                 "kept": len(frames_out), "dropped": {r: dropped_all.get(r, 0) for r in filters.REASONS}}
     if not frames_out:

@@ -20,6 +20,11 @@ Protocol (every number is an :class:`~sim2real.inference.evaluate.EvalSettings` 
   changes training and the versions of torch, numpy and Pillow (which decode, resize and train),
   so that evaluating many methods on one real folder trains them once, and a cache made by other
   library versions is not reused.
+* **Classes.** The segmenters learn every class that the real labels and the evaluated scenes
+  share (``classes``: name -> label id; the default is the liver alone), one network with a logit
+  per class; the Dice of the paper is the liver's, and :func:`class_dice` gives each shared
+  class's. A real set's frames and labels are read through their content masks
+  (:mod:`sim2real.inference.realimages`), so the segmenters never see the endoscope's surround.
 """
 
 from __future__ import annotations
@@ -38,10 +43,12 @@ from sim2real.fileio import atomic_write_bytes, atomic_write_json, cache_root
 from sim2real.inference.jobs import Jobs
 from sim2real.inference.realimages import fit_image, load_segmentation_set
 from sim2real.metrics.realism import dice as dice_score
-from sim2real.metrics.segmenter import LiverUNet, predict, train_segmenter
+from sim2real.metrics.segmenter import LiverUNet, predict, predict_classes, train_segmenter
+from sim2real.scene.classes import LABEL_BACKGROUND
 from sim2real.threads import one_torch_thread, usable_cores
 
-CACHE_FORMAT = "sim2real-segmenter-cache/2"
+CACHE_FORMAT = "sim2real-segmenter-cache/3"
+LIVER = {"liver": 0}
 
 
 def library_versions() -> dict:
@@ -49,12 +56,17 @@ def library_versions() -> dict:
     return {"torch": torch.__version__, "numpy": np.__version__, "pillow": PIL.__version__}
 
 
-def cache_key(labelled: Sequence[tuple[Path, Path]], spec: dict) -> str:
-    """SHA-256 over the labelled images' and labels' bytes (in name order) and ``spec``."""
+def cache_key(labelled: Sequence[tuple[Path, Path]], spec: dict,
+              masks: Sequence[Path | None] | None = None) -> str:
+    """SHA-256 over the labelled images', labels' and content masks' bytes (in name order) and ``spec``."""
     h = hashlib.sha256(CACHE_FORMAT.encode())
     h.update(json.dumps(spec, sort_keys=True).encode())
-    for ip, lp in sorted(labelled, key=lambda p: (str(p[0].name), str(p[1].name))):
-        for p in (ip, lp):
+    masks = list(masks) if masks is not None else [None] * len(labelled)
+    rows = sorted(((ip, lp, mp) for (ip, lp), mp in zip(labelled, masks)), key=lambda p: (str(p[0].name), str(p[1].name)))
+    for ip, lp, mp in rows:
+        for p in (ip, lp, mp):
+            if p is None:
+                continue
             h.update(p.name.encode())
             h.update(hashlib.sha256(p.read_bytes()).digest())
     return h.hexdigest()[:32]
@@ -70,15 +82,24 @@ def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return np.sort(perm[k:]), np.sort(perm[:k])
 
 
-def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool = True, say=print) -> tuple[list, dict]:
-    """Train (or load from the cache) ``s.seg_seeds`` segmenters; returns (models, info)."""
+def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool = True, say=print,
+               masks: Sequence[Path | None] | None = None, classes: dict[str, int] | None = None) -> tuple[list, dict]:
+    """Train (or load from the cache) ``s.seg_seeds`` segmenters of ``classes`` (name -> label id,
+    the first is the one ``held_out_dice`` reports; default: the liver) on the ``labelled`` images
+    read through their content ``masks``; returns (models, info)."""
+    classes = dict(classes or LIVER)
+    if not classes:
+        raise ValueError("segmenters need at least one class")
     spec = {"height": s.seg_height, "width": s.seg_width, "iterations": s.seg_iterations, "batch": s.seg_batch,
             "holdout": s.seg_holdout, "split_seed": s.seed, "crops": True, "flips": True, "base_channels": 16,
             "depth": 3, "check_every": s.seg_check_every, "early_stop": False, "device": "cpu", "threads": 1,
-            "lr": 1e-3, "libraries": library_versions()}
-    x, y = load_segmentation_set(labelled, s.seg_height, s.seg_width)
+            "lr": 1e-3, "libraries": library_versions(), "classes": classes}
+    x, y = load_segmentation_set(labelled, s.seg_height, s.seg_width, masks, list(classes.values()))
+    n_cls = len(classes)
+    if n_cls == 1:
+        y = y[:, 0]  # one class: the liver network as it always was
     tr, ho = split(len(labelled), s.seg_holdout, s.seed)
-    key = cache_key(labelled, spec)
+    key = cache_key(labelled, spec, masks)
     folder = cache_root() / "segmenters" / key
     loaded: dict[int, tuple] = {}
     for k in range(s.seg_seeds):
@@ -87,15 +108,15 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
         if f.is_file():
             try:
                 blob = torch.load(f, map_location="cpu", weights_only=True)
-                model = LiverUNet(16, 3)
+                model = LiverUNet(16, 3, n_cls)
                 model.load_state_dict(blob["state_dict"])
                 loaded[seed] = (model.to(device).eval(), {**json.loads(blob["meta"]), "cached": True})
             except Exception:  # a damaged cache entry is retrained, not trusted
                 pass
     missing = [s.seed + k for k in range(s.seg_seeds) if s.seed + k not in loaded]
     if missing:
-        say(f"Dice: training {len(missing)} liver U-Nets (seeds {', '.join(map(str, missing))}) on {len(tr)} labelled "
-            f"real images (held out: {len(ho)}; {s.seg_iterations} steps each)")
+        say(f"Dice: training {len(missing)} U-Nets of {', '.join(classes)} (seeds {', '.join(map(str, missing))}) on "
+            f"{len(tr)} labelled real images (held out: {len(ho)}; {s.seg_iterations} steps each)")
         # each on one torch thread (held here for all of them), the seeds in parallel threads: a
         # segmenter's steps run alone on its thread, so its weights are those of a sequential run
         workers = min(len(missing), 2 * usable_cores()) if usable_cores() > 1 else 1
@@ -113,14 +134,18 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
                                                          "images": [str(p[0]) for p in labelled]})
                 loaded[seed] = (model, {**meta, "cached": False})
     models, per_seed = [], []
+    y0 = y if n_cls == 1 else y[:, 0]
     for k in range(s.seg_seeds):
         model, meta = loaded[s.seed + k]
-        meta["held_out_dice"] = dice_score(predict(model, x[ho]), y[ho])
-        meta["train_dice"] = dice_score(predict(model, x[tr]), y[tr])
+        meta["held_out_dice"] = dice_score(predict(model, x[ho]), y0[ho])
+        meta["train_dice"] = dice_score(predict(model, x[tr]), y0[tr])
+        if n_cls > 1:
+            pred = predict_classes(model, x[ho])
+            meta["held_out_dice_classes"] = {c: dice_score(pred[:, j], y[ho][:, j]) for j, c in enumerate(classes)}
         models.append(model)
         per_seed.append(meta)
     info = {"n_train": int(len(tr)), "n_held_out": int(len(ho)) if len(labelled) > 1 else 0, "seeds": s.seg_seeds,
-            "cache": str(folder), "spec": spec, "per_seed": per_seed,
+            "cache": str(folder), "spec": spec, "per_seed": per_seed, "classes": classes,
             "held_out_dice": summarise([m["held_out_dice"] for m in per_seed], s.seg_max_spread)}
     return models, info
 
@@ -152,3 +177,21 @@ def dice_of(models: list, frames: Sequence[np.ndarray], gt: np.ndarray, s) -> di
     against ``gt`` (N, h, w) bool at the segmenter's size."""
     x = torch.from_numpy(np.stack([fit_image(f, s.seg_height, s.seg_width) for f in frames])).permute(0, 3, 1, 2)
     return summarise([dice_score(predict(m, x.contiguous()), gt) for m in models], s.seg_max_spread)
+
+
+def class_dice(models: list, frames: Sequence[np.ndarray], views: Sequence[np.ndarray], classes: dict[str, int],
+               s) -> dict:
+    """Each class's :func:`summarise` over the segmenters (trained on ``classes``, in that order) of
+    ``frames`` against ``views`` (label id per pixel of each view, repeated over the frames'
+    variants like :func:`dice_of`'s ground truth); None for a class absent from every view (its
+    Dice would be 1 for an empty prediction, which measures nothing)."""
+    x = torch.from_numpy(np.stack([fit_image(f, s.seg_height, s.seg_width) for f in frames])).permute(0, 3, 1, 2)
+    lab = np.stack([fit_image(np.where(v < 0, LABEL_BACKGROUND, v).astype(np.uint8), s.seg_height, s.seg_width,
+                              nearest=True) for v in views])
+    lab = np.concatenate([lab] * (len(frames) // len(lab)))
+    preds = [predict_classes(m, x.contiguous()) for m in models]
+    out = {}
+    for j, (name, label) in enumerate(classes.items()):
+        gt = lab == label
+        out[name] = summarise([dice_score(p[:, j], gt) for p in preds], s.seg_max_spread) if gt.any() else None
+    return out

@@ -44,11 +44,10 @@ from typing import Sequence
 
 import numpy as np
 
-from sim2real.data.real import load_rgb
 from sim2real.errors import UserError
 from sim2real.fileio import prepare_output_dir
 from sim2real.inference.anchors import Anchors, stand_in_options
-from sim2real.inference.realimages import find_real, fit_image
+from sim2real.inference.realimages import find_real, shared_classes
 from sim2real.inference.rows import ROWS
 from sim2real.inference.stages import (
     assemble_metrics,
@@ -188,7 +187,7 @@ def run_stages(model, scenes: list, trajs, trajectory_files, real, out, s: EvalS
     use = real_set.images
     if len(use) > s.max_real:
         use = [use[i] for i in sorted(rng.choice(len(use), s.max_real, replace=False))]
-    real_imgs = [fit_image(load_rgb(p), H, W) for p in use]
+    real_imgs = real_set.frames(use, H, W)  # each real set frame's content window (realimages)
 
     with timed(seconds, "views"):
         vs = views_stage(model, scenes, casters, anchors, real_imgs, s, rows_shown, size, progress,
@@ -197,7 +196,8 @@ def run_stages(model, scenes: list, trajs, trajectory_files, real, out, s: EvalS
         realism = realism_stage(vs, real_imgs, inception, status, s, rows_shown, say, model.device)
     del inception
     with timed(seconds, "dice"):
-        seg = segmentation_stage(real_set, vs, s, model.device, rows_shown, progress, say)
+        seg = segmentation_stage(real_set, vs, s, model.device, rows_shown, progress, say,
+                                 classes=shared_classes(real_set, [sc.class_table for sc, _ in scenes]))
     with timed(seconds, "consistency"):
         cons = consistency_stage(model, scenes, casters, anchors, s, rows_shown, out, size, trajs, trajectory_files,
                                  progress)

@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from sim2real.fileio import atomic_write_image, atomic_write_json
 from sim2real.grid import tile
-from sim2real.inference.dice import dice_of, segmenters  # torch-heavy training code, only with labels
+from sim2real.inference.dice import class_dice, dice_of, segmenters  # torch-heavy training code, only with labels
 from sim2real.inference.frames import chunked, iter_gbuffers
 from sim2real.inference.jobs import Jobs, results
 from sim2real.inference.realimages import fit_image, to_nchw
@@ -59,12 +59,14 @@ def stderr_say(progress: bool) -> Say:
 class ViewSet:
     """The random views of every row: ``shown[row]`` one frame per view (the model's first
     translation), ``scored[row]`` what the realism measures score (the model: every translation
-    of every view, variant after variant), ``liver[i]`` view i's simulated liver mask."""
+    of every view, variant after variant), ``liver[i]`` view i's simulated liver mask and
+    ``labels[i]`` its class label ids (-1: background)."""
 
     shown: dict[str, list]
     scored: dict[str, list]
     variants: list[str]
     liver: list[np.ndarray] = field(default_factory=list)
+    labels: list[np.ndarray] = field(default_factory=list)
 
 
 def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, real_imgs: Sequence[np.ndarray], s,
@@ -84,6 +86,7 @@ def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, re
         counts = [s.views // len(scenes) + (1 if k < s.views % len(scenes) else 0) for k in range(len(scenes))]
     views: dict[str, list] = {r: [] for r in rows_shown}
     liver: list[np.ndarray] = []
+    labels: list[np.ndarray] = []
     bar = tqdm(total=sum(counts), desc="views", unit="view", disable=not progress)
     jobs = Jobs()  # the ceiling and the floor shade in threads while the model translates
     for k, ((sc, d), n) in enumerate(zip(scenes, counts)):
@@ -97,7 +100,8 @@ def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, re
                 variants.setdefault(name, []).extend(frames)
             for g in chunk:
                 i = VIEW_INDEX0 + len(liver) if view_index is None else view_index[len(liver)]
-                liver.append(g.class_index() == 0)
+                labels.append(g.class_index())
+                liver.append(labels[-1] == 0)
                 views["a_ref"].append(to_uint8(reference_rendering(g)))
                 if sc.name in anchors:
                     views["ceiling"].append(jobs.submit(anchors[sc.name].ceiling, g, i))
@@ -112,7 +116,7 @@ def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, re
     # the one shown beside the other rows
     views["model"] = next(iter(variants.values()))
     scored = {**views, "model": [f for frames in variants.values() for f in frames]}
-    return ViewSet(views, scored, [v or "default" for v in variants], liver)
+    return ViewSet(views, scored, [v or "default" for v in variants], liver, labels)
 
 
 # --- realism -------------------------------------------------------------------------------------
@@ -226,8 +230,10 @@ def weight_free_realism(scored: dict[str, list], real_imgs: Sequence[np.ndarray]
 
 
 def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[str], progress: bool = True,
-                       say: Say = lambda m: None) -> dict:
-    """Dice of every row (:mod:`sim2real.inference.dice`) against the views' simulated liver.
+                       say: Say = lambda m: None, classes: dict[str, int] | None = None) -> dict:
+    """Dice of every row (:mod:`sim2real.inference.dice`) against the views' simulated liver, and
+    with ``classes`` (name -> label id: those the real labels and the scenes share, the liver
+    first) each class's under ``info["class_dice"]`` (class -> row -> value).
     Returns ``{"dice": {...}, "info": {...}, "rows": {row: value}, "reason"}``."""
     labelled = real_set.labelled
     dice = {"dice": None, "dice_a_ref": None, "dice_real_train": None, "dice_real_held_out": None, "dice_ceiling": None}
@@ -238,7 +244,11 @@ def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[st
         reason = (f"no labelled real images: expected {real_set.label_root}/NAME.png (uint8 class index, "
                   f"0 = liver, 255 = background) for the images {real_set.root}/NAME.*")
         return {"dice": dice, "info": info, "rows": values, "reason": reason}
-    segs, seg_info = segmenters(labelled, s, device, progress=progress, say=say)
+    if classes is not None and "liver" not in classes:
+        return {"dice": dice, "info": info, "rows": values,
+                "reason": "the real labels and the scenes share no liver class (the paper's Dice is the liver's)"}
+    segs, seg_info = segmenters(labelled, s, device, progress=progress, say=say,
+                                masks=[real_set.mask_of(p) for p, _ in labelled], classes=classes)
     info.update(seg_info)
     gt = np.stack([fit_image(m.astype(np.uint8), s.seg_height, s.seg_width, nearest=True).astype(bool)
                    for m in vs.liver])
@@ -250,6 +260,9 @@ def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[st
                 dice_real_held_out=seg_info["held_out_dice"]["value"],
                 dice_real_train=float(np.mean([m["train_dice"] for m in seg_info["per_seed"]])),
                 dice_ceiling=info["rows"].get("ceiling", {}).get("value"))
+    if classes is not None and len(classes) > 1:
+        per_row = {row: class_dice(segs, vs.scored[row], vs.labels, classes, s) for row in rows_shown}
+        info["class_dice"] = {c: {row: (per_row[row][c] or {}).get("value") for row in rows_shown} for c in classes}
     reason = info["rows"]["model"]["reason"]  # None when the seeds agree; else their range beside the mean
     return {"dice": dice, "info": info, "rows": values, "reason": reason}
 

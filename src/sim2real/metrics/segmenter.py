@@ -16,7 +16,11 @@ reproducible on a given device. With a validation set it stops once the validati
 improved by 0.005 for ``patience`` checks and returns the best checked weights (geometric
 augmentation only: a colour jitter was measured to make the untranslated a_ref look as good as
 real frames to the segmenter, README).
-Images are (N, 3, H, W) float RGB in [0, 1]; labels (N, H, W) bool (True = liver).
+Images are (N, 3, H, W) float RGB in [0, 1]; labels (N, H, W) bool (True = liver), or
+(N, C, H, W) bool for C classes at once (``out_channels`` = C: one sigmoid logit per class, so
+that a real folder labelled with more classes than the liver trains one network for all of them;
+the soft Dice is then the mean of the classes' and the first class is the one :func:`predict`
+returns and the validation tracks).
 """
 
 from __future__ import annotations
@@ -38,9 +42,9 @@ def _block(cin: int, cout: int) -> nn.Sequential:
 
 
 class LiverUNet(nn.Module):
-    """U-Net: (N, 3, H, W) in [0, 1] -> (N, 1, H, W) liver logits."""
+    """U-Net: (N, 3, H, W) in [0, 1] -> (N, out_channels, H, W) logits (the liver's, or one per class)."""
 
-    def __init__(self, base_channels: int = 16, depth: int = 3) -> None:
+    def __init__(self, base_channels: int = 16, depth: int = 3, out_channels: int = 1) -> None:
         super().__init__()
         if depth < 1 or base_channels < 1:
             raise ValueError("depth and base_channels must be >= 1")
@@ -49,7 +53,7 @@ class LiverUNet(nn.Module):
         self.down = nn.ModuleList([_block(3 if i == 0 else ch[i - 1], ch[i]) for i in range(depth)])
         self.up_conv = nn.ModuleList([nn.Conv2d(ch[i + 1], ch[i], 3, padding=1) for i in range(depth - 1)])
         self.up = nn.ModuleList([_block(2 * ch[i], ch[i]) for i in range(depth - 1)])
-        self.head = nn.Conv2d(ch[0], 1, 1)
+        self.head = nn.Conv2d(ch[0], out_channels, 1)
 
     def forward(self, x: Tensor) -> Tensor:
         if x.ndim != 4 or x.shape[1] != 3:
@@ -89,7 +93,7 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
                     depth: int = 3, flips: bool = True, crops: bool = False, val: tuple[Tensor, Tensor] | None = None,
                     check_every: int = 100, patience: int = 3, progress: bool = False, history: list | None = None,
                     early_stop: bool = True) -> LiverUNet:
-    """Train a :class:`LiverUNet` on (images (N,3,H,W) in [0,1], labels (N,H,W) bool).
+    """Train a :class:`LiverUNet` on (images (N,3,H,W) in [0,1], labels (N,H,W) or (N,C,H,W) bool).
 
     ``iterations`` Adam steps on random mini-batches of ``batch_size`` (with replacement across
     steps). ``device`` defaults to the images' device. ``progress`` shows a progress bar.
@@ -100,15 +104,18 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
     images = _check_images(images)
     if not isinstance(labels, Tensor):
         labels = torch.as_tensor(labels)
-    if labels.shape != (images.shape[0],) + tuple(images.shape[-2:]):
-        raise ValueError(f"labels must be (N, H, W) = {(images.shape[0],) + tuple(images.shape[-2:])}, "
-                         f"got {tuple(labels.shape)}")
+    multi = labels.ndim == 4
+    if (labels.shape[:1] + labels.shape[-2:] != (images.shape[0],) + tuple(images.shape[-2:])
+            or labels.ndim not in (3, 4) or (multi and labels.shape[1] < 1)):
+        raise ValueError(f"labels must be (N, H, W) or (N, C, H, W) with N, H, W = "
+                         f"{(images.shape[0],) + tuple(images.shape[-2:])}, got {tuple(labels.shape)}")
+    out_channels = labels.shape[1] if multi else 1
     if iterations < 0:
         raise ValueError("iterations must be >= 0")
     device = torch.device(device) if device is not None else images.device
     with TORCH_RNG_LOCK, torch.random.fork_rng(devices=[]):  # seeded initialisation, caller's RNG untouched
         torch.manual_seed(seed)
-        model = LiverUNet(base_channels=base_channels, depth=depth)
+        model = LiverUNet(base_channels=base_channels, depth=depth, out_channels=out_channels)
     model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     # without early stopping the last weights are kept: the learning rate falls to 0 along a cosine,
@@ -116,7 +123,10 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
     sched = None if early_stop else torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(iterations, 1))
     gen = torch.Generator(device="cpu").manual_seed(seed)
     x_all = images.to(device)
-    y_all = labels.to(device=device, dtype=torch.float32)[:, None]
+    y_all = labels.to(device=device, dtype=torch.float32)
+    y_all = y_all if multi else y_all[:, None]
+    if val is not None and multi:
+        val = (val[0], val[1][:, 0])  # the validation tracks the first class
     n = x_all.shape[0]
     best, best_state, since = -1.0, None, 0
     model.train()
@@ -144,7 +154,11 @@ def train_segmenter(images: Tensor, labels: Tensor, iterations: int = 500, devic
                 x, y = x.flip(-2), y.flip(-2)
         logits = model(x)
         p = torch.sigmoid(logits)
-        soft_dice = 1.0 - (2.0 * (p * y).sum() + 1.0) / (p.sum() + y.sum() + 1.0)
+        if multi:  # each class's soft Dice, averaged: a small class weighs as much as the liver
+            dims = (0, 2, 3)
+            soft_dice = (1.0 - (2.0 * (p * y).sum(dims) + 1.0) / (p.sum(dims) + y.sum(dims) + 1.0)).mean()
+        else:
+            soft_dice = 1.0 - (2.0 * (p * y).sum() + 1.0) / (p.sum() + y.sum() + 1.0)
         loss = F.binary_cross_entropy_with_logits(logits, y) + soft_dice
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -174,16 +188,22 @@ def _random_resized_crop(x: Tensor, y: Tensor, gen: torch.Generator) -> tuple[Te
 
 
 @torch.no_grad()
-def predict(model: nn.Module, images: Tensor, *, batch_size: int = 16, threshold: float = 0.5) -> Tensor:
-    """Liver masks (N, H, W) bool: sigmoid(logit) > ``threshold``; runs on the model's device,
-    returns on the images' device. The model is put in eval mode."""
+def predict_classes(model: nn.Module, images: Tensor, *, batch_size: int = 16, threshold: float = 0.5) -> Tensor:
+    """Class masks (N, C, H, W) bool: sigmoid(logit) > ``threshold`` per class; runs on the
+    model's device, returns on the images' device. The model is put in eval mode."""
     images = _check_images(images)
     model.eval()
     dev = next(model.parameters()).device
     out = []
     for i in range(0, images.shape[0], batch_size):
         logits = model(images[i:i + batch_size].to(dev))
-        out.append((torch.sigmoid(logits[:, 0]) > threshold).to(images.device))
+        out.append((torch.sigmoid(logits) > threshold).to(images.device))
     if not out:
-        return torch.zeros((0,) + tuple(images.shape[-2:]), dtype=torch.bool, device=images.device)
+        return torch.zeros((0, model.head.out_channels) + tuple(images.shape[-2:]), dtype=torch.bool,
+                           device=images.device)
     return torch.cat(out)
+
+
+def predict(model: nn.Module, images: Tensor, *, batch_size: int = 16, threshold: float = 0.5) -> Tensor:
+    """Liver masks (N, H, W) bool (the first class of a many-class model): see :func:`predict_classes`."""
+    return predict_classes(model, images, batch_size=batch_size, threshold=threshold)[:, 0]
