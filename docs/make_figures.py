@@ -122,7 +122,7 @@ def montage(png: Path) -> dict:
         _cli("realdomain", "--scenes", *scenes, "--images", 8, "--seed", 0, "--out", tmp / "real", "--quiet")
         frames = [np.asarray(Image.open(p).convert("RGB").resize((256, 128), Image.LANCZOS))
                   for p in sorted((tmp / "real" / "images").glob("*.png"))[:8]]
-    atomic_write_image(png, tile([frames[i:i + 2] for i in range(0, 8, 2)]))
+    atomic_write_image(png, tile([frames[i:i + 2] for i in range(0, 8, 2)], gap=0))
     return {"file": str(png), "frames": len(frames)}
 
 
