@@ -79,7 +79,7 @@ def flow_image(flow: np.ndarray) -> np.ndarray:
 
 def overview(demo: Path, png: Path, device: str) -> dict:
     """The README's picture: a_ref, translated, revisited, depth and flow of view 0."""
-    scene_dir = sorted((demo / "scenes").iterdir())[0]
+    scene_dir = demo / "scenes" / "sim_0"  # the scene the demo translated and evaluated
     cams = Trajectory.load(demo / "trajectory.txt").cameras
     gbuffers = list(iter_gbuffers(scene_dir, cams, None, 8))
     model = load_run(demo / "run", device=device)
