@@ -62,12 +62,11 @@ from threadpoolctl import threadpool_limits
 from torch.utils.data import default_collate
 
 import sim2real.data.viewpool
-
 from sim2real.data.datasets import StepSampler, TrainPairs, resolve_scenes
 from sim2real.data.real import RealImages, load_rgb, random_resized_crop
 from sim2real.data.tensors import compact, complete_on_device, view_inputs, widen
-from sim2real.data.views import write_views_manifest
 from sim2real.data.viewpool import GBUFFERS, attach_view_pools, bytes_per_view, open_pool
+from sim2real.data.views import write_views_manifest
 from sim2real.presets import POOL_VIEWS, preset
 from sim2real.render.raycast import RayCaster
 from sim2real.render.reference import reference_rendering

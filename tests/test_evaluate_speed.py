@@ -8,12 +8,10 @@ from types import SimpleNamespace
 
 import cv2
 import numpy as np
-import pytest
 import torch
 from eval_data import labelled_real_dir
 
-from sim2real.inference import dice as dice_mod
-from sim2real.inference import stages
+from sim2real.inference import dice as dice_mod, stages
 from sim2real.inference.anchors import Anchors
 from sim2real.inference.evaluate import EvalSettings
 from sim2real.inference.jobs import Jobs, results

@@ -51,10 +51,10 @@ import torch
 
 from sim2real.config import TrainConfig, save_yaml, to_dict
 from sim2real.data.datasets import StepSampler, make_dataset, resolve_scenes
-from sim2real.data.viewpool import attach_view_pools
 from sim2real.data.real import INDEX as REAL_INDEX, RealImages
 from sim2real.data.shm import loader_workers_for_shm
 from sim2real.data.tensors import complete_on_device, widen
+from sim2real.data.viewpool import attach_view_pools
 from sim2real.engine import checkpoint as ckpt, distributed, precision
 from sim2real.engine.observe import Observer
 from sim2real.engine.runlock import LOCK_NAME, RunLock, close_inherited

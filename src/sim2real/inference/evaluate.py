@@ -133,7 +133,6 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     s = settings or EvalSettings()
     check_settings(s)
     t_start = time.perf_counter()
-    say = stderr_say(progress)
 
     # ---- inputs (fail fast) ----
     if not scene_dirs:
