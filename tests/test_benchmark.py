@@ -29,7 +29,8 @@ def bench(capsys, out, *extra) -> tuple[int, str]:
 @pytest.fixture(scope="module")
 def everything(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench") / "all"
-    assert main(["benchmark", "--out", str(out), *TINY, "--parallel", "2"]) == 0  # two trainings at a time
+    # two trainings at a time; ours with a second seed
+    assert main(["benchmark", "--out", str(out), *TINY, "--parallel", "2", "--seeds", "2", "--seeds-for", "ours"]) == 0
     return out
 
 
@@ -45,13 +46,24 @@ def test_every_method_and_metric_in_the_table(everything):
         same = e["metrics"]["revisit_orb_1_accuracy"] == e["metrics"]["orb_1_accuracy"]
         assert same or not e["time_independent"], name
     assert table["methods"]["of_unit"]["time_independent"] is False
-    assert {"ceiling", "floor"} <= set(table["anchors"])
+    assert {"ceiling", "floor", "a_ref", "real_held_out"} <= set(table["anchors"])
+    # ours: two runs with their own seeds; its row is their mean, its range their min and max
+    runs = table["methods"]["ours"]["runs"]
+    assert {n: r["seed"] for n, r in runs.items()} == {"ours": 0, "ours.seed1": 1}
+    a, b = (r["metrics"]["orb_1_correct"] for r in runs.values())
+    assert table["methods"]["ours"]["metrics"]["orb_1_correct"] == pytest.approx((a + b) / 2)
+    assert table["methods"]["ours"]["range"]["orb_1_correct"] == [min(a, b), max(a, b)]
+    assert list(table["methods"]["of_unit"]["runs"]) == ["of_unit"]
+    for name, e in table["methods"].items():  # the weight-free realism and odometry beside consistency
+        assert 0.0 <= e["metrics"]["c2st"] <= 1.0 and "odometry_10_success" in e["metrics"], name
+    assert table["calibration"]["status"] in ("calibrated", "uncalibrated")
     assert table["methods"]["ssim_munit"]["type"] == "img" and table["methods"]["recycle"]["type"] == "vid"
     assert table["methods"]["ours"]["type"] == table["methods"]["ours_no_vc"]["type"] == "ours"
     md = (everything / "table.md").read_text()
     for name in METHOD_PRESETS:
         assert f"| {name} |" in md
-    assert "| of_unit (revisit) |" in md and "| *ceiling* |" in md and "| *floor* |" in md
+    assert "| of_unit (revisit) |" in md and "| *ceiling* |" in md and "| *floor* |" in md and "| *a ref* |" in md
+    assert "| ours ×2 |" in md and "C2ST AUC" in md and "| *real held out* |" in md
     page = (everything / "report.html").read_text()
     assert page.count("<svg") >= 8 and "data:image/png;base64," in page
     assert (everything / "side_by_side.png").is_file()
@@ -77,6 +89,18 @@ def test_a_killed_benchmark_resumes_without_retraining(everything, tmp_path, cap
     assert list(json.loads((out / "table.json").read_text())["methods"]) == list(METHOD_PRESETS)
 
 
+def test_a_resume_may_add_seeds(everything, tmp_path, capsys):
+    out = tmp_path / "more"
+    shutil.copytree(everything, out)
+    code, err = bench(capsys, out, "--resume", "--seeds", "2", "--seeds-for", "ours", "of_unit")
+    assert code == 0, err
+    assert "of_unit.seed1: training" in err and "ours.seed1: training" not in err and "ours: training" not in err
+    table = json.loads((out / "table.json").read_text())
+    assert list(table["methods"]["of_unit"]["runs"]) == ["of_unit", "of_unit.seed1"]
+    code, err = bench(capsys, out, "--resume", "--seed", "3")  # what is compared may not change
+    assert code == 2 and "the flags differ" in err
+
+
 def test_bad_input_is_refused_before_anything_is_trained(capsys, tmp_path):
     base = tmp_path / "inputs"
     code, err = bench(capsys, tmp_path / "a", "--methods", "ours", "cyclegan")
@@ -91,3 +115,5 @@ def test_bad_input_is_refused_before_anything_is_trained(capsys, tmp_path):
     assert code == 2 and "already holds other data" in err and not (tmp_path / "c" / "runs").exists()
     code, err = bench(capsys, tmp_path / "d", "--methods", "ours", "--resume")
     assert code == 2 and "nothing to resume" in err
+    code, err = bench(capsys, tmp_path / "e", "--methods", "ours", "--seeds", "2", "--seeds-for", "recycle")
+    assert code == 2 and "--seeds-for names 'recycle', which is not compared" in err and not (tmp_path / "e").exists()

@@ -33,6 +33,11 @@ def register(sub) -> None:
     p.add_argument("--preset", choices=tuple(PRESETS), default=None,
                    help="default: paper on a GPU, cpu on a CPU (sim2real/presets.py)")
     p.add_argument("--seed", type=non_negative_int, default=0)
+    p.add_argument("--seeds", type=positive_int, default=1,
+                   help="trainings per method with seeds SEED, SEED+1, ... on the same data and test paths "
+                        "(default 1; a --resume may raise it)")
+    p.add_argument("--seeds-for", nargs="+", metavar="NAME", default=None,
+                   help="the methods trained --seeds times (default: every method)")
     p.add_argument("--frames", type=positive_int, default=100, help="frames of a generated test trajectory")
     p.add_argument("--eval-views", type=positive_int, default=32, help="random views for the realism metrics")
     p.add_argument("--seg-iterations", type=positive_int, default=200, help="steps of each Dice segmenter (exactly)")
@@ -56,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     if minutes is None and args.iterations is None:
         minutes = DEFAULT_MINUTES
     s = BenchmarkSettings(methods=list(args.methods), minutes=minutes, iterations=args.iterations, preset=args.preset,
-                          seed=args.seed, device=args.device, real_images=args.real_images,
+                          seed=args.seed, seeds=args.seeds, seeds_for=args.seeds_for, device=args.device,
+                          real_images=args.real_images,
                           sequences=args.real_sequences, sequence_frames=args.sequence_frames, frames=args.frames,
                           eval_views=args.eval_views, seg_iterations=args.seg_iterations,
                           trajectory=motion_kwargs(args), parallel=args.parallel)

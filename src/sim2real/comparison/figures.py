@@ -28,6 +28,7 @@ BARS = (("orb_1_accuracy", "ORB-1 accuracy", True), ("orb_5_accuracy", "ORB-5 ac
         ("orb_10_correct", "ORB-10 correct matches per pair", False),
         ("revisit_orb_1_accuracy", "revisit ORB-1 accuracy", True), ("revisit_orb_10_accuracy", "revisit ORB-10 accuracy", True),
         ("of_error", "OF error (px, lower is better)", False), ("revisit_of_error", "revisit OF error (px)", False),
+        ("c2st", "C2ST AUC vs held-out real frames (0.5: indistinguishable; lower is better)", False),
         ("dice", "Dice", False), ("detail", "detail: mean grey gradient / the real images'", False), ("fid", "FID (lower is better)", False), ("proxy", "proxy distance (not FID; lower is better)", False))
 """(metric key, chart title, shown in percent)."""
 

@@ -13,6 +13,7 @@ Layout of ``OUT``::
     data/                     the embedded scenes and stand-in real domain (without data flags)
     trajectories/             the generated test paths, one per evaluated scene
     runs/METHOD/              training runs; done.json once the budget is spent
+    runs/METHOD.seedS/        further seeds of a method (``--seeds``), evaluated on the same views
     translations/METHOD/      frames, video.mp4 and ground truth of the first test path
     evaluations/METHOD/       metrics.json, report.html
     videos/METHOD.mp4         one video per method
@@ -84,6 +85,11 @@ class BenchmarkSettings:
     seg_iterations: int = 200
     trajectory: dict = field(default_factory=dict)
     """Motion budget of the generated test paths (make_trajectory keywords)."""
+    seeds: int = 1
+    """Trainings of each method in ``seeds_for``, with the seeds ``seed``, ``seed + 1``, ...; the
+    data, the test paths and the evaluation's views stay those of ``seed``."""
+    seeds_for: list[str] | None = None
+    """The methods trained ``seeds`` times (None: every method); the others train once."""
     parallel: int = 1
     """Methods trained at once, each in its own process on ``cores // parallel`` threads (every
     method then trains under the same conditions; on a 2-core CPU two single-thread trainings
@@ -94,15 +100,26 @@ def _say(msg: str) -> None:
     print(f"benchmark: {msg}", file=sys.stderr, flush=True)
 
 
-def method_config(s: BenchmarkSettings, method: str, cuda: bool):
+def method_config(s: BenchmarkSettings, method: str, cuda: bool, seed: int | None = None):
     """The training configuration of ``method`` in this benchmark: its preset (default: ``paper`` on
-    a GPU, ``cpu`` on a CPU) for a run that the budget ends."""
+    a GPU, ``cpu`` on a CPU) for a run that the budget ends, trained with ``seed`` (default ``s.seed``)."""
     cfg = budgeted(s.preset or default_preset(cuda), method, s.device)
-    sets = [f"seed={s.seed}"]
+    sets = [f"seed={s.seed if seed is None else seed}"]
     if s.iterations is not None:
         sets.append(f"iterations={s.iterations}")
         sets.append(f"checkpoint_every={min(cfg.checkpoint_every, s.iterations)}")
     return override(cfg, sets)
+
+
+def run_names(s: BenchmarkSettings) -> dict[str, tuple[str, int]]:
+    """Every training run of the benchmark: ``{run name: (method, seed)}``, a method's first seed
+    under its own name, its further seeds as ``METHOD.seedS``."""
+    runs = {}
+    for m in s.methods:
+        runs[m] = (m, s.seed)
+        if s.seeds_for is None or m in s.seeds_for:
+            runs.update({f"{m}.seed{s.seed + i}": (m, s.seed + i) for i in range(1, s.seeds)})
+    return runs
 
 
 def _uses_sequences(cfg) -> bool:
@@ -118,6 +135,9 @@ def check(s: BenchmarkSettings, out: Path, scenes, real, trajectories, resume: b
         raise UserError(f"unknown method '{unknown[0]}' (choose from {', '.join(METHOD_PRESETS)})")
     if len(set(s.methods)) != len(s.methods):
         raise UserError("a method is named twice in --methods")
+    if s.seeds_for is not None and set(s.seeds_for) - set(s.methods):
+        raise UserError(f"--seeds-for names '{sorted(set(s.seeds_for) - set(s.methods))[0]}', which is not compared "
+                        "(--methods)")
     if (s.minutes is None) == (s.iterations is None):
         raise UserError("give one budget: --minutes-per-method M or --iterations N")
     if (scenes is None) != (real is None):
@@ -128,7 +148,7 @@ def check(s: BenchmarkSettings, out: Path, scenes, real, trajectories, resume: b
         raise UserError(f"give one trajectory per scene: {len(scenes)} scenes, {len(trajectories)} trajectories")
     resolve_device(s.device)
     cuda = s.device == "cuda" or (s.device == "auto" and torch.cuda.is_available())
-    configs = {m: method_config(s, m, cuda) for m in s.methods}
+    configs = {n: method_config(s, m, cuda, seed) for n, (m, seed) in run_names(s).items()}
     for cfg in configs.values():
         validate(cfg)
     check_settings(EvalSettings(views=s.eval_views, frames=s.frames, seg_iterations=s.seg_iterations, seed=s.seed))
@@ -152,12 +172,21 @@ def check(s: BenchmarkSettings, out: Path, scenes, real, trajectories, resume: b
         if not manifest.is_file():
             raise UserError(f"nothing to resume: {manifest} does not exist")
         saved = json.loads(manifest.read_text())
-        if saved.get("settings") != _settings_json(s, scenes, real, trajectories):
+        if _what(saved.get("settings") or {}) != _what(_settings_json(s, scenes, real, trajectories)):
             raise UserError(f"--resume: the flags differ from the benchmark's own ({manifest}); give the same flags")
     else:
 
         prepare_output_dir(out)
     return configs
+
+
+ADDITIVE = ("seeds", "seeds_for")
+"""Settings a resume may change: further seeds add runs and leave the finished ones as they are."""
+
+
+def _what(settings: dict) -> dict:
+    """The settings a resume must match."""
+    return {k: v for k, v in settings.items() if k not in ADDITIVE}
 
 
 def _settings_json(s: BenchmarkSettings, scenes, real, trajectories) -> dict:
@@ -315,10 +344,10 @@ def run_benchmark(out, s: BenchmarkSettings, scenes=None, real=None, trajectorie
                      trajectories=[str(t) for t in trajectories], settings=settings, fid_weights=fid_weights,
                      device=s.device, progress=True)
         metrics[name] = json.loads((edir / "metrics.json").read_text())
-    table = build_table(metrics, trained, configs)
+    table = build_table(metrics, trained, configs, {n: m for n, (m, _) in run_names(s).items()})
     write_table(table, out)
     _say("the side-by-side figure")
-    figure = side_by_side(out / "side_by_side.png", {n: out / "runs" / n for n in configs}, eval_scenes[0],
+    figure = side_by_side(out / "side_by_side.png", {m: out / "runs" / m for m in s.methods}, eval_scenes[0],
                           trajectories[0], real_dir, s.seed, s.device)
     write_report(table, out, figure)
     _say(f"written: {out / 'table.md'}, {out / 'report.html'}")
