@@ -48,12 +48,19 @@ def test_cache_key_holds_library_versions_and_settings(tmp_path_factory, monkeyp
 
 
 def test_an_unstable_dice_is_the_mean_with_the_seeds_range_beside_it():
-    """0.93 / 0.86 / 0.90: mean 0.8966..., spread 0.07 > 0.05, so unstable, and the value is still the mean."""
+    """0.93 / 0.86 / 0.90: mean 0.89667, sample variance ((0.03333)^2 + (0.03667)^2 + (0.00333)^2) / 2
+    = 0.0012333, standard deviation 0.035119, standard error 0.035119 / sqrt(3) = 0.020276 > 0.02:
+    unstable, and the value is still the mean. 0.95 / 0.97: standard error 0.01414 / sqrt(2) = 0.01."""
     from sim2real.inference.dice import summarise
 
-    d = summarise([0.93, 0.86, 0.90], 0.05)
-    assert d["value"] == pytest.approx((0.93 + 0.86 + 0.90) / 3) and d["spread"] == pytest.approx(0.07)
+    d = summarise([0.93, 0.86, 0.90], 0.02)
+    assert d["value"] == pytest.approx(0.896667, abs=1e-6) and d["spread"] == pytest.approx(0.07)
+    assert d["stderr"] == pytest.approx(0.020276, abs=1e-6)
     assert d["stable"] is False and "0.860-0.930" in d["reason"] and "the mean is shown" in d["reason"]
-    ok = summarise([0.95, 0.97], 0.05)
+    assert summarise([0.93, 0.86, 0.90], 0.021)["stable"]  # the same seeds under a looser bound
+    ok = summarise([0.95, 0.97], 0.02)
     assert ok["stable"] and ok["reason"] is None and ok["value"] == pytest.approx(0.96)
-    assert summarise([], 0.05)["value"] is None
+    assert ok["stderr"] == pytest.approx(0.01)
+    one = summarise([0.5], 0.0)  # one seed: no scatter to measure
+    assert one["stderr"] == 0.0 and one["stable"]
+    assert summarise([], 0.02)["value"] is None

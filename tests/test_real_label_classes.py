@@ -90,7 +90,7 @@ def test_segmenters_learn_every_class_the_scene_shares(labelled_set, tmp_path, m
     classes = shared_classes(rs, [scene_table])
     assert classes == {"liver": 0, "fat": 1, "gallbladder": 4, "stomach": 5, "instrument": 12, "tumour": 16}
     s = SimpleNamespace(seg_height=16, seg_width=32, seg_iterations=120, seg_batch=8, seg_holdout=0.25, seed=0,
-                        seg_check_every=50, seg_seeds=1, seg_max_spread=0.05)
+                        seg_check_every=50, seg_seeds=1, seg_max_stderr=0.02)
     models, info = dice_mod.segmenters(rs.labelled, s, "cpu", progress=False, say=lambda m: None,
                                        masks=[rs.mask_of(p) for p, _ in rs.labelled], classes=classes)
     per_class = info["per_seed"][0]["held_out_dice_classes"]

@@ -4,7 +4,7 @@
                       [--trajectory FILE... (one per scene) | --frames 100] [--views 64]
     sim2real evaluate --frames DIR|VIDEO --trajectory FILE --scene SCENE_DIR --real DIR --out DIR
                       [--fid-weights PATH] [--device auto|cpu|cuda] [--checkpoint PATH]
-                      [--seg-iterations 200] [--seg-size 32x64] [--seg-seeds 3] [--max-real 500] [--batch 8] [--seed 0]
+                      [--seg-iterations 200] [--seg-size 32x64] [--seg-seeds 5] [--max-real 500] [--batch 8] [--seed 0]
 
 The second form evaluates a video made by any tool along the trajectory of the scene
 (:mod:`sim2real.inference.external`). Writes DIR/metrics.json, DIR/report.md, DIR/report.html, DIR/plots/, DIR/samples/, DIR/videos/
@@ -65,7 +65,7 @@ def register(sub) -> None:
     p.add_argument("--workers", type=positive_int, help="ray-casting processes (default: automatic)")
     add_motion_args(p)
     p.add_argument("--no-anchors", action="store_true", help="skip the ceiling and floor rows (faster, uncalibrated)")
-    p.add_argument("--seg-seeds", type=positive_int, default=3, help="liver U-Nets whose Dice is averaged (default 3)")
+    p.add_argument("--seg-seeds", type=positive_int, default=5, help="liver U-Nets whose Dice is averaged (default 5)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars or messages")
     p.set_defaults(func=run)
 

@@ -12,9 +12,11 @@ Protocol (every number is an :class:`~sim2real.inference.evaluate.EvalSettings` 
   segmenters are small (32x64 inputs), so the CPU costs little even where a GPU is present, and
   the same library versions give the same weights on every machine.
 * A set of frames is scored by every segmenter. Its Dice is the mean over the seeds, reported
-  with the per-seed values and their spread (max - min). A spread above ``seg_max_spread``
-  (0.05) marks the figure **unstable**: the mean is still the value, and the reason beside it
-  gives the seeds' range, so a reader sees both the number and how far to trust it.
+  with the per-seed values, their spread (max - min) and the standard error of the mean
+  (sample standard deviation / sqrt(seeds)). The figure reported is the mean, so it is its
+  standard error, not one segmenter's scatter, that says how far another set of seeds could move
+  it: above ``seg_max_stderr`` (0.02, about +-0.04 at 95 %) the figure is marked **unstable**;
+  the mean is still the value, and the reason beside it gives the seeds' range.
 * Trained segmenters are cached under ``$SIM2REAL_CACHE`` (default ``~/.cache/sim2real``) in
   ``segmenters/KEY/``, KEY = SHA-256 of the labelled files' contents, every setting that
   changes training and the versions of torch, numpy and Pillow (which decode, resize and train),
@@ -146,7 +148,7 @@ def segmenters(labelled: Sequence[tuple[Path, Path]], s, device, progress: bool 
         per_seed.append(meta)
     info = {"n_train": int(len(tr)), "n_held_out": int(len(ho)) if len(labelled) > 1 else 0, "seeds": s.seg_seeds,
             "cache": str(folder), "spec": spec, "per_seed": per_seed, "classes": classes,
-            "held_out_dice": summarise([m["held_out_dice"] for m in per_seed], s.seg_max_spread)}
+            "held_out_dice": summarise([m["held_out_dice"] for m in per_seed], s.seg_max_stderr)}
     return models, info
 
 
@@ -159,24 +161,28 @@ def _train(x, y, tr, ho, s, seed: int, progress: bool):
     return model, hist
 
 
-def summarise(values: Sequence[float], max_spread: float) -> dict:
-    """{"value": the mean over the seeds (None without any), "mean", "per_seed", "spread", "stable",
-    "reason": None when stable, else the seeds' range}."""
+def summarise(values: Sequence[float], max_stderr: float) -> dict:
+    """{"value": the mean over the seeds (None without any), "mean", "per_seed", "spread" (max -
+    min), "stderr" (sample standard deviation / sqrt(n); 0 for one seed), "stable" (stderr <=
+    ``max_stderr``), "reason": None when stable, else the seeds' range}."""
     v = [float(a) for a in values]
-    spread = max(v) - min(v) if v else None
-    stable = spread is not None and spread <= max_spread
-    return {"value": float(np.mean(v)) if v else None, "mean": float(np.mean(v)) if v else None,
-            "per_seed": v, "spread": spread, "stable": stable,
-            "reason": None if stable else (f"unstable over segmenter seeds: {min(v):.3f}-{max(v):.3f} "
-                                           f"(spread {spread:.3f} > {max_spread:g}); the mean is shown"
-                                           if v else "no segmenter")}
+    if not v:
+        return {"value": None, "mean": None, "per_seed": [], "spread": None, "stderr": None, "stable": False,
+                "reason": "no segmenter"}
+    mean, spread = float(np.mean(v)), max(v) - min(v)
+    stderr = float(np.std(v, ddof=1) / np.sqrt(len(v))) if len(v) > 1 else 0.0
+    stable = stderr <= max_stderr
+    reason = None if stable else (f"unstable over segmenter seeds: {min(v):.3f}-{max(v):.3f} (standard error of the "
+                                  f"mean {stderr:.3f} > {max_stderr:g}); the mean is shown")
+    return {"value": mean, "mean": mean, "per_seed": v, "spread": spread, "stderr": stderr, "stable": stable,
+            "reason": reason}
 
 
 def dice_of(models: list, frames: Sequence[np.ndarray], gt: np.ndarray, s) -> dict:
     """:func:`summarise` of the Dice of every segmenter on ``frames`` (uint8 RGB at any size)
     against ``gt`` (N, h, w) bool at the segmenter's size."""
     x = torch.from_numpy(np.stack([fit_image(f, s.seg_height, s.seg_width) for f in frames])).permute(0, 3, 1, 2)
-    return summarise([dice_score(predict(m, x.contiguous()), gt) for m in models], s.seg_max_spread)
+    return summarise([dice_score(predict(m, x.contiguous()), gt) for m in models], s.seg_max_stderr)
 
 
 def class_dice(models: list, frames: Sequence[np.ndarray], views: Sequence[np.ndarray], classes: dict[str, int],
@@ -193,5 +199,5 @@ def class_dice(models: list, frames: Sequence[np.ndarray], views: Sequence[np.nd
     out = {}
     for j, (name, label) in enumerate(classes.items()):
         gt = lab == label
-        out[name] = summarise([dice_score(p[:, j], gt) for p in preds], s.seg_max_spread) if gt.any() else None
+        out[name] = summarise([dice_score(p[:, j], gt) for p in preds], s.seg_max_stderr) if gt.any() else None
     return out
