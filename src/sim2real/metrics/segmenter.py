@@ -15,7 +15,7 @@ resized crops of 60-100 % of each side, mini-batches drawn with a seeded generat
 reproducible on a given device. With a validation set it stops once the validation Dice has not
 improved by 0.005 for ``patience`` checks and returns the best checked weights (geometric
 augmentation only: a colour jitter was measured to make the untranslated a_ref look as good as
-real frames to the segmenter, README).
+real frames to the segmenter, docs/history.md).
 Images are (N, 3, H, W) float RGB in [0, 1]; labels (N, H, W) bool (True = liver), or
 (N, C, H, W) bool for C classes at once (``out_channels`` = C: one sigmoid logit per class, so
 that a real folder labelled with more classes than the liver trains one network for all of them;
