@@ -64,3 +64,16 @@ def test_an_unstable_dice_is_the_mean_with_the_seeds_range_beside_it():
     one = summarise([0.5], 0.0)  # one seed: no scatter to measure
     assert one["stderr"] == 0.0 and one["stable"]
     assert summarise([], 0.02)["value"] is None
+
+
+def test_the_report_gives_a_dice_with_its_standard_error_and_the_seeds():
+    """The report's Dice cell: the mean to 4 digits, then '± ' and the standard error to 3 decimals;
+    one seed (standard error 0) gives the bare mean."""
+    from sim2real.inference.dice import summarise
+    from sim2real.inference.report import _dice_row
+
+    m = {"dice_info": {"rows": {"model": summarise([0.95, 0.97], 0.02), "a_ref": summarise([0.5], 0.02)}},
+         "reasons": {"dice": None}}
+    label, value, note = _dice_row(m, "model", "Dice", "mean over 2")
+    assert value == "0.96 ± 0.010" and note == "mean over 2 (seeds 0.950, 0.970)"
+    assert _dice_row(m, "a_ref", "Dice", "one")[1] == "0.5"

@@ -94,7 +94,7 @@ class EvalSettings:
     standard error exceeds seg_max_stderr (five seeds: one segmenter's scatter on a model's frames,
     about 0.04, gives a mean within about 0.02)."""
     seg_holdout: float = 0.2
-    """Share of the labelled real images held out (stopping criterion and the reported held-out Dice)."""
+    """Share of the labelled real images held out (the reported held-out Dice on real frames)."""
     seg_check_every: int = 50
     seg_max_stderr: float = 0.02
     orb_features: int = 1000

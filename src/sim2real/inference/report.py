@@ -134,7 +134,8 @@ def _dice_row(m: dict, row: str, label: str, note: str) -> list[str]:
     if d is None:
         return [label, "n/a", m["reasons"]["dice"] or "not computed"]
     spread = "" if d["spread"] is None else f" (seeds {', '.join(f'{v:.3f}' for v in d['per_seed'])})"
-    return [label, _num(d["value"]), (d["reason"] or note) + spread]
+    value = _num(d["value"]) + (f" ± {d['stderr']:.3f}" if d.get("stderr") else "")  # its standard error
+    return [label, value, (d["reason"] or note) + spread]
 
 
 def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
