@@ -117,3 +117,21 @@ def test_bad_input_is_refused_before_anything_is_trained(capsys, tmp_path):
     assert code == 2 and "nothing to resume" in err
     code, err = bench(capsys, tmp_path / "e", "--methods", "ours", "--seeds", "2", "--seeds-for", "recycle")
     assert code == 2 and "--seeds-for names 'recycle', which is not compared" in err and not (tmp_path / "e").exists()
+
+
+def test_counts_above_the_ceilings_are_marked_not_ranked():
+    """A hand-made table: ORB counts 3.0 and 0.5 against a ceiling's 2.0 -> only the first has the mark."""
+    from sim2real.comparison.table import markdown
+
+    def row(correct):
+        m = {"c2st": 0.9, "proxy": 0.1, "dice": 0.9, "of_error": 0.5}
+        for k in (1, 5, 10):
+            m[f"orb_{k}_accuracy"], m[f"orb_{k}_correct"] = 0.5, correct
+        return m
+
+    method = {"type": "ours", "time_independent": True, "train": {"iterations": 7, "seconds": 9.0}}
+    table = {"realism": "proxy", "realism_reason": "no weights", "calibration": {},
+             "methods": {"high": {**method, "metrics": row(3.0)}, "low": {**method, "metrics": row(0.5)}},
+             "anchors": {"ceiling": row(2.0)}}
+    lines = {l.split(" | ")[0]: l for l in markdown(table).splitlines() if l.startswith("| ")}
+    assert lines["| high"].count("(3⁺)") == 3 and "⁺" not in lines["| low"] and "⁺" not in lines["| *ceiling*"]

@@ -156,6 +156,24 @@ def test_poses_depend_on_seed_scene_and_index_alone(counted, train_inputs):
             assert torch.equal(ca[key], cr[key]), key
 
 
+def test_a_pool_built_by_spawned_workers_equals_the_one_built_here(train_inputs, monkeypatch, tmp_path):
+    """Two worker processes draw and ray-cast the same views, bit for bit, as the calling process
+    (each worker loads the whole scene: drawing a pose needs its camera region and anatomy)."""
+    scenes, _ = train_inputs
+    cfg = DataConfig(height=32, width=64, view_pool=4)
+    pools = []
+    for workers in (1, 2):
+        monkeypatch.setenv("SIM2REAL_CACHE", str(tmp_path / f"cache{workers}"))
+        monkeypatch.setattr(viewpool, "worker_count", lambda jobs=None, reserve=0, w=workers: w)
+        pools.append(_sources(scenes, cfg)[0].pool)
+    here, spawned = pools
+    assert here.folder != spawned.folder
+    for k in range(4):
+        a, b = here.view(k), spawned.view(k)
+        assert np.array_equal(a.world_to_camera, b.world_to_camera)
+        assert np.array_equal(a.points, b.points) and np.array_equal(a.object_id, b.object_id)
+
+
 def test_pairs_from_a_pool_keep_the_overlap_rule(counted, train_inputs):
     """Every pair's j is a different pool view; below min_overlap j was redrawn (the best of the
     draws is kept): each pair sees at least as much of i as the best single draw would."""

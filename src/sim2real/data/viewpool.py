@@ -61,7 +61,7 @@ from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, cache_root, fsync_files, read_json
 from sim2real.pool import WorkerPool
 from sim2real.render.gbuffer import GBuffer
-from sim2real.render.raycast import RayCaster, SceneGeometry
+from sim2real.render.raycast import RayCaster
 from sim2real.scene.camera import intrinsics_from_fov
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import MAX_BACKGROUND, sample_poses
@@ -219,13 +219,13 @@ def check_pool(folder: Path, spec: dict) -> str | None:
 class _Builder:
     """A build worker's state: its ray caster and the pool file being written."""
 
-    def __init__(self, geometry: SceneGeometry, path: str, spec: dict, caster: RayCaster | None = None):
-        self.caster = caster if caster is not None else RayCaster(geometry)
-        self.path, self.spec, self.gbuffers = path, spec, None
+    def __init__(self, caster: RayCaster, path: str, spec: dict):
+        self.caster, self.path, self.spec, self.gbuffers = caster, path, spec, None
 
 
-def _builder_setup(geometry: SceneGeometry, path: str, spec: dict) -> _Builder:
-    return _Builder(geometry, path, spec)
+def _builder_setup(scene_dir: str, path: str, spec: dict) -> _Builder:
+    # the whole scene, not only its geometry: drawing a pose needs its camera region and anatomy
+    return _Builder(RayCaster(Scene.load(scene_dir)), path, spec)
 
 
 def _build_view(state: _Builder, k: int) -> tuple[int, np.ndarray, int]:
@@ -243,7 +243,7 @@ def _build_view(state: _Builder, k: int) -> tuple[int, np.ndarray, int]:
     return k, np.asarray(g.world_to_camera, np.float64), state.caster.skipped_background - before
 
 
-def _build(folder: Path, spec: dict, scene: Scene, progress: bool) -> None:
+def _build(folder: Path, spec: dict, scene_dir: Path, scene: Scene, progress: bool) -> None:
     n, h, w = spec["views"], spec["height"], spec["width"]
     fp16 = fp16_fits(scene)
     need = n * bytes_per_view(h, w, fp16)
@@ -261,8 +261,8 @@ def _build(folder: Path, spec: dict, scene: Scene, progress: bool) -> None:
         workers = worker_count(jobs=n)
         skipped = 0
         with tqdm(total=n, desc=f"view pool '{spec['scene']}'", unit="view", disable=not progress) as bar, \
-                WorkerPool(workers, _builder_setup, (caster.geometry, str(path), spec),
-                           state=_Builder(caster.geometry, str(path), spec, caster)) as pool:
+                WorkerPool(workers, _builder_setup, (str(scene_dir), str(path), spec),
+                           state=_Builder(caster, str(path), spec)) as pool:
             for k, w2c, skip in pool.imap(_build_view, range(n)):
                 cameras[k] = w2c
                 skipped += skip
@@ -333,7 +333,7 @@ def open_pool(scene_dir: Path, scene: Scene | None, cfg: DataConfig, seed: int, 
             if problem is None:
                 return ViewPool(spec, scene_dir, classes, table, folder)
             print(f"sim2real: view pool {folder} is damaged ({problem}); ray-casting it again", file=sys.stderr)
-        _build(folder, spec, scene, progress)
+        _build(folder, spec, scene_dir, scene, progress)
     return ViewPool(spec, scene_dir, classes, table, folder)
 
 
