@@ -257,12 +257,12 @@ def _build(folder: Path, spec: dict, scene_dir: Path, scene: Scene, progress: bo
         path = tmp / GBUFFERS
         np.lib.format.open_memmap(path, mode="w+", dtype=pool_dtype(fp16), shape=(n, h, w)).flush()
         cameras = np.zeros((n, 4, 4), np.float64)
-        caster = RayCaster(scene)
         workers = worker_count(jobs=n)
+        # in this process, the scene already loaded; spawned workers load their own
+        here = _Builder(RayCaster(scene), str(path), spec) if workers <= 1 else None
         skipped = 0
         with tqdm(total=n, desc=f"view pool '{spec['scene']}'", unit="view", disable=not progress) as bar, \
-                WorkerPool(workers, _builder_setup, (str(scene_dir), str(path), spec),
-                           state=_Builder(caster, str(path), spec)) as pool:
+                WorkerPool(workers, _builder_setup, (str(scene_dir), str(path), spec), state=here) as pool:
             for k, w2c, skip in pool.imap(_build_view, range(n)):
                 cameras[k] = w2c
                 skipped += skip
