@@ -13,10 +13,17 @@ values) on a procedural scene, then measures
   frame is its reference rendering): what everything but the network allows, the ceiling a
   GPU's translation meets. On a CPU the network dominates ``end_to_end_fps``.
 
-On CUDA the run's ``amp`` (bf16) and channels-last are used, as in ``sim2real translate``.
+``--precisions auto,fp32,bf16`` measures each network arithmetic (``sim2real translate
+--precision``; 'auto' is the run's bf16 with channels-last on CUDA, fp32 on the CPU), each
+timed pass alternating between them, and reports every later precision's frames against the
+first's: mean, 99th percentile and largest absolute difference in 8-bit levels.
+``--run RUN --scene SCENE`` times a trained run at its own size (for example the demo's
+``demo/run`` with ``demo/scenes/sim_0``) instead of untrained presets at 256x512: the frame
+differences of a trained model are the ones that matter.
 
-Usage: python benchmarks/bench_translate.py [--presets small,paper] [--device cpu|cuda]
-       [--frames 16] [--batch 8] [--repeats 3] [--end-to-end] [--pipeline]
+Usage: python benchmarks/bench_translate.py [--presets small,paper | --run RUN --scene SCENE]
+       [--device cpu|cuda] [--precisions auto] [--frames 16] [--batch 8] [--repeats 3]
+       [--end-to-end] [--pipeline]
 """
 
 from __future__ import annotations
@@ -33,6 +40,8 @@ from pathlib import Path
 import numpy as np
 import torch
 from PIL import Image
+
+from sim2real.engine.precision import cpu_has_bf16
 
 
 class _ARefSequence:
@@ -58,59 +67,93 @@ def make_run(preset: str, scene_dir: Path, real_dir: Path, out: Path, device: st
     return out
 
 
+def _levels(frames, ref) -> dict:
+    """Absolute differences of ``frames`` from ``ref`` in 8-bit levels: mean, 99th percentile, max."""
+    d = np.concatenate([np.abs(a.astype(np.int16) - b.astype(np.int16)).ravel() for a, b in zip(frames, ref)])
+    return {"mean": round(float(d.mean()), 3), "p99": float(np.percentile(d, 99)), "max": int(d.max())}
+
+
+def _timed(model, scene_name, gbuffers, batch) -> tuple[float, list]:
+    if model.device.type == "cuda":
+        torch.cuda.synchronize()
+    t0 = time.perf_counter()
+    frames = model.translate_gbuffers(scene_name, gbuffers, batch)
+    if model.device.type == "cuda":
+        torch.cuda.synchronize()
+    return time.perf_counter() - t0, frames
+
+
 def main() -> None:
     from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
     from sim2real.render.raycast import RayCaster
     from sim2real.scene.procedural import generate_scene
+    from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import make_trajectory
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", default="small,paper")
+    ap.add_argument("--run", help="a trained run folder to time instead of the presets (needs --scene)")
+    ap.add_argument("--scene", help="a scene folder of --run")
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--precisions", default="auto", help="comma-separated: auto, fp32, bf16")
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--end-to-end", action="store_true")
     ap.add_argument("--pipeline", action="store_true", help="also time the command with a_ref for the network")
     args = ap.parse_args()
+    if bool(args.run) != bool(args.scene):
+        raise SystemExit("give --run RUN and --scene SCENE together")
+    precisions = args.precisions.split(",")
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        scene = generate_scene(0)
-        scene_dir = scene.save(tmp / "scene")
-        real = tmp / "real"
-        real.mkdir()
-        rng = np.random.default_rng(0)
-        for k in range(4):
-            Image.fromarray(rng.integers(0, 255, (300, 600, 3), dtype=np.uint8)).save(real / f"{k}.png")
+        if args.run:
+            scene_dir = Path(args.scene)
+            scene = Scene.load(scene_dir)
+            runs = {"run": Path(args.run)}
+        else:
+            scene = generate_scene(0)
+            scene_dir = scene.save(tmp / "scene")
+            real = tmp / "real"
+            real.mkdir()
+            rng = np.random.default_rng(0)
+            for k in range(4):
+                Image.fromarray(rng.integers(0, 255, (300, 600, 3), dtype=np.uint8)).save(real / f"{k}.png")
+            runs = {name: make_run(name, scene_dir, real, tmp / f"run_{name}", args.device)
+                    for name in args.presets.split(",")}
         caster = RayCaster(scene)
-        traj = make_trajectory(caster, args.frames, 256, 512, seed=0)
-        traj.save(tmp / "traj.txt")
-        gbuffers = [caster.render(c) for c in traj.cameras]
 
         results = {}
-        for name in args.presets.split(","):
-            run = make_run(name, scene_dir, real, tmp / f"run_{name}", args.device)
-            model = load_run(run, device=args.device)
-            res = {"amp_bf16": model.amp, "generator_filters": model.cfg.generator.filters}
+        for name, run in runs.items():
+            models = {p: load_run(run, device=args.device, precision=p) for p in precisions}
+            first = models[precisions[0]]
+            h, w = first.train_size if args.run else (256, 512)
+            traj = make_trajectory(caster, args.frames, h, w, first.cfg.data.fov_x_deg, seed=0)
+            traj.save(tmp / "traj.txt")
+            gbuffers = [caster.render(c) for c in traj.cameras]
+            res = {"height": h, "width": w, "generator_filters": first.cfg.generator.filters,
+                   "precisions": {p: {"amp_bf16": m.amp} for p, m in models.items()}}
             if args.repeats > 0:  # --repeats 0: no model timing (e.g. for --pipeline alone)
-                model.translate_gbuffers(scene.name, gbuffers, args.batch)  # warm-up
-                times = []
-                for _ in range(args.repeats):
-                    if model.device.type == "cuda":
-                        torch.cuda.synchronize()
+                times = {p: [] for p in precisions}
+                frames = {p: _timed(m, scene.name, gbuffers, args.batch)[1] for p, m in models.items()}  # warm-up
+                for _ in range(args.repeats):  # alternating, so that a slow spell of the machine hits each alike
+                    for p, m in models.items():
+                        times[p].append(_timed(m, scene.name, gbuffers, args.batch)[0])
+                for p in precisions:
+                    r = res["precisions"][p]
+                    r.update(model_fps=args.frames / statistics.median(times[p]), model_seconds=times[p])
+                    if p != precisions[0]:
+                        r[f"levels_vs_{precisions[0]}"] = _levels(frames[p], frames[precisions[0]])
+            for p, model in models.items():
+                r = res["precisions"][p]
+                if args.end_to_end:
                     t0 = time.perf_counter()
-                    model.translate_gbuffers(scene.name, gbuffers, args.batch)
-                    if model.device.type == "cuda":
-                        torch.cuda.synchronize()
-                    times.append(time.perf_counter() - t0)
-                res.update(model_fps=args.frames / statistics.median(times), model_seconds=times)
-            if args.end_to_end:
-                t0 = time.perf_counter()
-                translate_sequence(model, trajectory_source(model, scene_dir, tmp / "traj.txt"),
-                                   tmp / f"out_{name}", batch=args.batch, progress=False)
-                res["end_to_end_fps"] = args.frames / (time.perf_counter() - t0)
+                    translate_sequence(model, trajectory_source(model, scene_dir, tmp / "traj.txt"),
+                                       tmp / f"out_{name}_{p}", batch=args.batch, progress=False)
+                    r["end_to_end_fps"] = args.frames / (time.perf_counter() - t0)
             if args.pipeline:
+                model = load_run(run, device=args.device)
                 model.sequence = lambda scene_name, batch: _ARefSequence()
                 t0 = time.perf_counter()
                 translate_sequence(model, trajectory_source(model, scene_dir, tmp / "traj.txt"),
@@ -119,10 +162,11 @@ def main() -> None:
             results[name] = res
 
     print(json.dumps({
-        "benchmark": "translate", "height": 256, "width": 512, "frames": args.frames, "batch": args.batch,
+        "benchmark": "translate", "frames": args.frames, "batch": args.batch,
         "device": args.device, "cuda_name": torch.cuda.get_device_name() if args.device == "cuda" else None,
+        "cpu_native_bf16": cpu_has_bf16(),
         "machine": platform.machine(), "cpus": os.cpu_count(), "torch": torch.__version__,
-        "torch_threads": torch.get_num_threads(), "presets": results,
+        "torch_threads": torch.get_num_threads(), "runs": results,
     }, indent=2))
 
 

@@ -58,7 +58,9 @@ def test_frames_refused_with_one_line(path, tmp_path, capsys):
               "has 3 frames but the trajectory"),
              (["--frames", work / "ceiling", "--out", tmp_path / "o2"], "exactly one --trajectory"),
              (["--frames", tmp_path / "missing", "--trajectory", work / "traj.txt", "--out", tmp_path / "o3"],
-              "neither a folder of frames nor a video")]
+              "neither a folder of frames nor a video"),
+             (["--frames", work / "ceiling", "--trajectory", work / "traj.txt", "--out", tmp_path / "o4",
+               "--precision", "bf16"], "evaluates a video without one")]
     for extra, msg in cases:
         assert main([str(a) for a in ["evaluate", *common, *extra]]) == 2
         err = capsys.readouterr().err.strip()

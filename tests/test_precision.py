@@ -4,6 +4,8 @@ fp32 under autocast."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 from torch.utils.data import default_collate
@@ -79,3 +81,26 @@ def test_bf16_step_is_finite_and_close_to_fp32(name, structure, request, tmp_pat
     for k in l32:
         assert torch.isfinite(l16[k]) and l16[k].dtype == torch.float32, k
         assert l16[k].item() == pytest.approx(l32[k].item(), rel=REL, abs=ABS), (k, l16[k].item(), l32[k].item())
+
+
+def test_inference_precision_choices():
+    """'auto' follows the run on CUDA and is fp32 on the CPU; an explicit choice holds on every
+    device; the CLI offers exactly the choices the engine knows."""
+    from sim2real.cli.args import PRECISIONS
+
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    assert precision.INFERENCE_PRECISIONS == PRECISIONS
+    assert precision.inference_bf16(cuda, "auto", True) and not precision.inference_bf16(cuda, "auto", False)
+    assert not precision.inference_bf16(cpu, "auto", True)
+    assert precision.inference_bf16(cpu, "bf16", False) and precision.inference_bf16(cuda, "bf16", False)
+    assert not precision.inference_bf16(cuda, "fp32", True)
+    with pytest.raises(ValueError, match="fp16"):
+        precision.inference_bf16(cpu, "fp16", True)
+
+
+
+@pytest.mark.skipif(not Path("/proc/cpuinfo").is_file(), reason="needs /proc/cpuinfo (Linux)")
+def test_cpu_bf16_probe_agrees_with_the_kernel():
+    flags = {f for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags")
+             for f in line.split(":", 1)[1].split()}
+    assert precision.cpu_has_bf16() == bool({"avx512_bf16", "amx_tile"} & flags)

@@ -162,3 +162,39 @@ def test_mixed_precision_path_on_cpu(inputs, monkeypatch):
         assert d.mean() < 3.0 and d.max() <= 32, (d.mean(), d.max())  # measured: mean ~1, max 10-14 levels
     assert any(not np.array_equal(a, b) for a, b in zip(bf16, fp32))  # it did run in bf16
     assert np.array_equal(model.translate_gbuffers(name, [g[2], g[0]], batch=2)[0], bf16[2])
+
+
+def test_precision_choice_on_cpu(inputs, tmp_path, capsys):
+    """'auto' and 'fp32' are the same exact fp32 frames on the CPU; 'bf16' runs bf16 autocast
+    in the default layout (channels-last is CUDA-only), frames within bf16 rounding of fp32 and
+    still independent of what shares their batch; the choice is recorded and checked."""
+    from sim2real.errors import UserError
+
+    name = f"procedural_{SCENE_SEED:04d}"
+    g = [inputs["caster"].render(c) for c in inputs["cams"][:3]]
+    auto = load_run(inputs["run"], "cpu")
+    fp32 = load_run(inputs["run"], "cpu", precision="fp32")
+    bf16 = load_run(inputs["run"], "cpu", precision="bf16")
+    assert not auto.amp and not fp32.amp and bf16.amp
+    assert bf16.method.memory_format == torch.contiguous_format
+    want = auto.translate_gbuffers(name, g, batch=2)
+    assert all(np.array_equal(a, b) for a, b in zip(fp32.translate_gbuffers(name, g, batch=2), want))
+    got = bf16.translate_gbuffers(name, g, batch=2)
+    for a, b in zip(got, want):
+        d = np.abs(a.astype(int) - b.astype(int))
+        assert d.mean() < 3.0 and d.max() <= 32, (d.mean(), d.max())
+    assert any(not np.array_equal(a, b) for a, b in zip(got, want))  # it did run in bf16
+    assert np.array_equal(bf16.translate_gbuffers(name, [g[2], g[0]], batch=2)[0], got[2])
+    with pytest.raises(UserError, match="precision must be one of auto, fp32, bf16"):
+        load_run(inputs["run"], "cpu", precision="fp16")
+
+    out = tmp_path / "bf16"
+    code, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
+                    "--out", out, "--device", "cpu", "--precision", "bf16", "--no-progress")
+    assert code == 0, err
+    assert json.loads((out / "translate.json").read_text())["amp_bf16"] is True
+    with pytest.raises(SystemExit) as e:  # argparse refuses it before anything loads
+        main([str(a) for a in ("translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
+                               "--out", tmp_path / "fp16", "--precision", "fp16")])
+    assert e.value.code == 2 and "invalid choice: 'fp16'" in one_line(capsys.readouterr().err)
+    assert not (tmp_path / "fp16").exists()

@@ -63,3 +63,16 @@ def add_motion_args(p) -> None:
 def motion_kwargs(args) -> dict:
     return {"flow_budget": args.flow_budget or None, "max_deg_per_frame": args.max_deg_per_frame or None,
             "look": args.look}
+
+
+PRECISIONS = ("auto", "fp32", "bf16")
+"""The choices of ``--precision`` (:data:`sim2real.engine.precision.INFERENCE_PRECISIONS`,
+repeated here because this module imports no torch)."""
+
+
+def add_precision_arg(p) -> None:
+    """``--precision`` of the commands that run a trained network."""
+    p.add_argument("--precision", choices=PRECISIONS, default="auto",
+                   help="network arithmetic: auto (default: the run's bf16 on CUDA, fp32 on the CPU), fp32, or bf16 "
+                        "(also on a CPU: 1.3-1.6x faster networks where the CPU has AVX512-BF16 or AMX, frames "
+                        "within a few levels of fp32; slower elsewhere)")

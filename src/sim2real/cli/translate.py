@@ -1,7 +1,7 @@
 """``sim2real translate``: render a camera trajectory (or a views folder) through a trained run.
 
     sim2real translate RUN --scene SCENE --trajectory FILE --out DIR [--batch B] [--device auto|cpu|cuda]
-                       [--checkpoint PATH] [--fps F] [--workers N]
+                       [--precision auto|fp32|bf16] [--checkpoint PATH] [--fps F] [--workers N]
     sim2real translate RUN --views VIEWS_DIR --out DIR [...]
 
 Writes DIR/frames/000000.png ..., DIR/video.mp4, DIR/ground_truth/ and DIR/translate.json
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import positive_float, positive_int
+from sim2real.cli.args import add_precision_arg, positive_float, positive_int
 from sim2real.errors import UserError
 
 
@@ -25,10 +25,11 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="new or empty output folder")
     p.add_argument("--batch", type=positive_int, default=8, help="frames per network call (default 8)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_precision_arg(p)
     p.add_argument("--checkpoint", metavar="PATH", help="checkpoint file instead of RUN/checkpoints/last.pt")
     p.add_argument("--fps", type=positive_float, help="video frame rate (default: the trajectory's, else 5)")
     p.add_argument("--workers", type=positive_int,
-                   help="ray-casting processes (default: 1 for short or small trajectories, else up to 4)")
+                   help="ray-casting processes (default: 1 for short or small trajectories, else one per core)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -41,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("give either --views VIEWS_DIR or --scene SCENE --trajectory FILE, not both")
     if not args.views and not (args.scene and args.trajectory):
         raise UserError("give --scene SCENE and --trajectory FILE (or --views VIEWS_DIR)")
-    model = load_run(args.run, args.device, args.checkpoint)
+    model = load_run(args.run, args.device, args.checkpoint, args.precision)
     source = views_source(model, args.views) if args.views else trajectory_source(model, args.scene, args.trajectory)
     m = translate_sequence(model, source, args.out, batch=args.batch, fps=args.fps, workers=args.workers,
                            progress=not args.no_progress)

@@ -128,9 +128,11 @@ class EvalSettings:
 def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], real: str | os.PathLike,
              out: str | os.PathLike, trajectories: Sequence[str | os.PathLike] | None = None,
              settings: EvalSettings | None = None, fid_weights: str | os.PathLike | None = None,
-             device: str = "auto", checkpoint: str | os.PathLike | None = None, progress: bool = True) -> dict:
+             device: str = "auto", checkpoint: str | os.PathLike | None = None, progress: bool = True,
+             precision: str = "auto") -> dict:
     """Evaluate a run; writes ``out/metrics.json``, ``report.md``, ``report.html``, ``samples/``
-    and ``videos/``. Returns the metrics. Inputs are all checked before the long work starts; the
+    and ``videos/``. Returns the metrics. ``precision``: the networks' arithmetic
+    (:func:`sim2real.inference.translate.load_run`). Inputs are all checked before the long work starts; the
     work is the stages of :mod:`sim2real.inference.stages`, in order."""
     s = settings or EvalSettings()
     check_settings(s)
@@ -141,7 +143,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
         raise UserError("no scenes given (--scenes SCENE_DIR...)")
     if trajectories is not None and len(trajectories) != len(scene_dirs):
         raise UserError(f"give one trajectory per scene: {len(scene_dirs)} scenes, {len(trajectories)} trajectories")
-    model = load_run(run, device, checkpoint)
+    model = load_run(run, device, checkpoint, precision)
     scenes = []
     for d in scene_dirs:
         if not (Path(d) / "scene.json").is_file():

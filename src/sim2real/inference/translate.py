@@ -42,7 +42,7 @@ from tqdm import tqdm
 
 from sim2real.config import to_dict
 from sim2real.data.views import list_views
-from sim2real.engine import precision
+from sim2real.engine import precision as numerics
 from sim2real.engine.checkpoint import LAST, load_checkpoint
 from sim2real.engine.trainer import resolve_device
 from sim2real.errors import UserError
@@ -95,12 +95,14 @@ def _scene_classes(scene_dir: Path | None) -> tuple[str, ...] | None:
 class TrainedModel:
     """The generator side of a trained run, ready for inference (see the module docstring)."""
 
-    def __init__(self, cfg, method, gen, device: torch.device, scenes: list[SceneInfo], checkpoint: Path, step: int):
+    def __init__(self, cfg, method, gen, device: torch.device, scenes: list[SceneInfo], checkpoint: Path, step: int,
+                 amp: bool):
         self.cfg = cfg
         self.method = method
         self.gen = gen
         self.device = device
-        self.amp = precision.mixed_precision(device) and bool(cfg.amp)
+        self.amp = amp
+        """Whether the networks run under bf16 autocast (:func:`sim2real.engine.precision.inference_bf16`)."""
         self.infos = {s.name: s for s in scenes}
         self.checkpoint = checkpoint
         self.step = step
@@ -175,7 +177,7 @@ class TrainedModel:
             if real is not None:
 
                 r = (to_nchw([np.asarray(x) for x in real[i : i + batch]]).to(self.device) / 127.5) - 1.0
-            with precision.autocast(self.device, self.amp):
+            with numerics.autocast(self.device, self.amp):
                 variants = self.method.translate_views(self.gen, b, r, gen)
             for name, frames in variants:
                 out.setdefault(name, []).extend(_to_uint8(frames))
@@ -225,7 +227,7 @@ class FrameSequence:
         # by one 8-bit level; with one shape a view's frame never depends on what shares its
         # batch. A time-dependent method sees only the real frames (a repeat would be a new frame).
         pad_to = self.batch if m.method.time_independent else n
-        with precision.autocast(m.device, m.amp):
+        with numerics.autocast(m.device, m.amp):
             b_hat = self.translator.push(gbuffers + [gbuffers[-1]] * (pad_to - n))
         return _to_uint8(b_hat[:n])
 
@@ -263,13 +265,16 @@ def find_checkpoint(run_dir: str | os.PathLike, checkpoint: str | os.PathLike | 
 
 
 def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
-             checkpoint: str | os.PathLike | None = None) -> TrainedModel:
+             checkpoint: str | os.PathLike | None = None, precision: str = "auto") -> TrainedModel:
     """Restore the translator and the neural textures of a run for inference.
 
     ``device``: 'auto' (CUDA when available), 'cpu', 'cuda' or a torch.device. The configuration,
     method and scene list come from the checkpoint itself; the scene folders are not needed
-    (the textures hold their objects' bounding boxes).
+    (the textures hold their objects' bounding boxes). ``precision``: 'auto', 'fp32' or
+    'bf16' (:func:`sim2real.engine.precision.inference_bf16`).
     """
+    if precision not in numerics.INFERENCE_PRECISIONS:
+        raise UserError(f"precision must be one of {', '.join(numerics.INFERENCE_PRECISIONS)}, got '{precision}'")
     path = find_checkpoint(run_dir, checkpoint)
     state = load_checkpoint(path)
     try:
@@ -294,14 +299,15 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
         first = str(e).strip().splitlines()[0]
         raise UserError(f"checkpoint {path} does not match its own configuration ({first})") from None
     gen.to(dev)
-    if precision.mixed_precision(dev):
+    if numerics.mixed_precision(dev):
         method.memory_format = torch.channels_last
         for m in gen.children():
             if not isinstance(m, torch.nn.ModuleDict):
                 m.to(memory_format=torch.channels_last)
     gen.eval()
     gen.requires_grad_(False)
-    return TrainedModel(cfg, method, gen, dev, infos, path, int(state.get("step", 0)))
+    amp = numerics.inference_bf16(dev, precision, cfg.amp)
+    return TrainedModel(cfg, method, gen, dev, infos, path, int(state.get("step", 0)), amp)
 
 
 # --- the command -----------------------------------------------------------------------------------
