@@ -75,4 +75,4 @@ def add_precision_arg(p) -> None:
     p.add_argument("--precision", choices=PRECISIONS, default="auto",
                    help="network arithmetic: auto (default: the run's bf16 on CUDA, fp32 on the CPU), fp32, or bf16 "
                         "(also on a CPU: 1.3-1.6x faster networks where the CPU has AVX512-BF16 or AMX, frames "
-                        "within a few levels of fp32; slower elsewhere)")
+                        "within a few levels of fp32; elsewhere bf16 is emulated, not measured)")

@@ -26,8 +26,8 @@ INFERENCE_PRECISIONS = ("auto", "fp32", "bf16")
 
 
 def cpu_has_bf16() -> bool:
-    """Whether this CPU has bf16 instructions (AVX512-BF16 or AMX tiles, x86); elsewhere bf16 is
-    emulated and slower than fp32."""
+    """Whether this CPU has bf16 instructions (AVX512-BF16 or AMX tiles, x86); elsewhere oneDNN
+    emulates bf16 (its speed there is not measured)."""
     try:
         return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
     except AttributeError:  # a torch without these probes
