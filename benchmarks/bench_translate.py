@@ -23,7 +23,7 @@ differences of a trained model are the ones that matter.
 
 Usage: python benchmarks/bench_translate.py [--presets small,paper | --run RUN --scene SCENE]
        [--device cpu|cuda] [--precisions auto] [--frames 16] [--batch 8] [--repeats 3]
-       [--end-to-end] [--pipeline]
+       [--end-to-end] [--workers N] [--pipeline]
 """
 
 from __future__ import annotations
@@ -100,6 +100,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--end-to-end", action="store_true")
+    ap.add_argument("--workers", type=int, help="ray-casting processes of the end-to-end runs (default: automatic)")
     ap.add_argument("--pipeline", action="store_true", help="also time the command with a_ref for the network")
     args = ap.parse_args()
     if bool(args.run) != bool(args.scene):
@@ -150,20 +151,20 @@ def main() -> None:
                 if args.end_to_end:
                     t0 = time.perf_counter()
                     translate_sequence(model, trajectory_source(model, scene_dir, tmp / "traj.txt"),
-                                       tmp / f"out_{name}_{p}", batch=args.batch, progress=False)
+                                       tmp / f"out_{name}_{p}", batch=args.batch, workers=args.workers, progress=False)
                     r["end_to_end_fps"] = args.frames / (time.perf_counter() - t0)
             if args.pipeline:
                 model = load_run(run, device=args.device)
                 model.sequence = lambda scene_name, batch: _ARefSequence()
                 t0 = time.perf_counter()
                 translate_sequence(model, trajectory_source(model, scene_dir, tmp / "traj.txt"),
-                                   tmp / f"pipe_{name}", batch=args.batch, progress=False)
+                                   tmp / f"pipe_{name}", batch=args.batch, workers=args.workers, progress=False)
                 res["pipeline_fps"] = args.frames / (time.perf_counter() - t0)
             results[name] = res
 
     print(json.dumps({
         "benchmark": "translate", "frames": args.frames, "batch": args.batch,
-        "device": args.device, "cuda_name": torch.cuda.get_device_name() if args.device == "cuda" else None,
+        "workers": args.workers, "device": args.device, "cuda_name": torch.cuda.get_device_name() if args.device == "cuda" else None,
         "cpu_native_bf16": cpu_has_bf16(),
         "machine": platform.machine(), "cpus": os.cpu_count(), "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(), "runs": results,

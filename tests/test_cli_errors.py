@@ -148,3 +148,22 @@ def test_entry_point_has_no_traceback(tmp_path):
                         "--out", str(tmp_path / "o")], capture_output=True, text=True)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.strip().startswith("sim2real: error:") and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_seg_iterations_default_and_range(capsys):
+    """Every evaluating command defaults to the library's segmenter steps and refuses a negative
+    count in one line."""
+    from sim2real.cli.main import build_parser
+    from sim2real.inference.evaluate import EvalSettings
+
+    parser = build_parser()
+    want = EvalSettings().seg_iterations
+    for argv in (["evaluate", "RUN", "--scenes", "S", "--real", "R", "--out", "O"], ["demo", "--out", "O"],
+                 ["benchmark", "--out", "O"]):
+        args = parser.parse_args(argv)
+        assert args.seg_iterations == want, argv
+        assert parser.parse_args(argv + ["--seg-iterations", "7"]).seg_iterations == 7
+    with pytest.raises(SystemExit) as e:  # argparse rejects before main's handler
+        main(["demo", "--out", "O", "--seg-iterations", "-1"])
+    code, err = e.value.code, capsys.readouterr().err.strip()
+    assert_one_line_error(code, err, "--seg-iterations", "-1")

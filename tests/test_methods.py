@@ -142,7 +142,7 @@ def test_inference_equals_the_training_forward_pass(name, request, tmp_path, pro
     assert got.std() > 1.0  # not a constant image
 
 
-def test_init_from_carries_the_networks_to_new_scenes(train_inputs, tmp_path, capsys):
+def test_init_from_carries_the_networks_to_new_scenes(train_inputs, tmp_path, capsys, monkeypatch):
     """``--init-from``: a trained run's translator and discriminators, fresh textures for other scenes."""
     import torch
     from train_data import scene_dir
@@ -156,7 +156,14 @@ def test_init_from_carries_the_networks_to_new_scenes(train_inputs, tmp_path, ca
     other = scene_dir(tmp_path, 12)
     argv = ["train", "--scenes", str(other), "--real", str(real), "--device", "cpu", "--no-progress",
             "--iterations", "1", "--init-from", str(tmp_path / "src")]
+    from sim2real.engine import checkpoint
+
+    reads = []
+    monkeypatch.setattr(checkpoint, "load_checkpoint",
+                        lambda path, *a, _load=load_checkpoint, **k: reads.append(path) or _load(path, *a, **k))
     assert main([*argv, "--out", str(tmp_path / "new")]) == 0, capsys.readouterr().err
+    assert len(reads) == 1  # the source checkpoint is read once, for its configuration and its weights
+    monkeypatch.undo()
     # the source run's configuration, changed only by this command's flags, each printed
     assert f"--init-from {tmp_path / 'src'}: its configuration, overridden: iterations 2 -> 1, " \
            "device 'auto' -> 'cpu'" in capsys.readouterr().out

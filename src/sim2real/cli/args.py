@@ -65,6 +65,17 @@ def motion_kwargs(args) -> dict:
             "look": args.look}
 
 
+SEG_ITERATIONS = 200
+"""Default training steps of each Dice segmenter (``EvalSettings.seg_iterations``, repeated here
+because this module imports no torch; tests/test_cli_errors.py holds them equal)."""
+
+
+def add_seg_iterations_arg(p) -> None:
+    """``--seg-iterations`` of the commands that evaluate (0: no Dice segmenter is trained)."""
+    p.add_argument("--seg-iterations", type=non_negative_int, default=SEG_ITERATIONS,
+                   help=f"training steps of each Dice segmenter, exactly (deterministic; default {SEG_ITERATIONS})")
+
+
 PRECISIONS = ("auto", "fp32", "bf16")
 """The choices of ``--precision`` (:data:`sim2real.engine.precision.INFERENCE_PRECISIONS`,
 repeated here because this module imports no torch)."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
+from sim2real.cli.args import add_motion_args, add_seg_iterations_arg, motion_kwargs, non_negative_int, positive_float, positive_int
 from sim2real.presets import METHOD_PRESETS, PRESETS
 
 DEFAULT_MINUTES = 20.0
@@ -40,7 +40,7 @@ def register(sub) -> None:
                    help="the methods trained --seeds times (default: every method)")
     p.add_argument("--frames", type=positive_int, default=100, help="frames of a generated test trajectory")
     p.add_argument("--eval-views", type=positive_int, default=32, help="random views for the realism metrics")
-    p.add_argument("--seg-iterations", type=positive_int, default=200, help="steps of each Dice segmenter (exactly)")
+    add_seg_iterations_arg(p)
     p.add_argument("--real-images", type=positive_int, default=200, help="embedded stand-in real images")
     p.add_argument("--real-sequences", type=non_negative_int, default=4, help="embedded stand-in real sequences")
     p.add_argument("--sequence-frames", type=positive_int, default=30, help="frames per embedded real sequence")

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
+from sim2real.cli.args import add_motion_args, add_seg_iterations_arg, motion_kwargs, non_negative_int, positive_float, positive_int
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, prepare_output_dir
 from sim2real.presets import PRESETS, budgeted, config_from_dict, default_preset
@@ -34,8 +34,7 @@ def register(sub) -> None:
     p.add_argument("--real-images", type=positive_int, default=200, help="stand-in real images")
     p.add_argument("--frames", type=positive_int, default=100, help="frames of the test trajectory")
     p.add_argument("--eval-views", type=positive_int, default=32, help="random views for the realism metrics")
-    p.add_argument("--seg-iterations", type=positive_int, default=200,
-                   help="training steps of each Dice segmenter (exactly; deterministic)")
+    add_seg_iterations_arg(p)
     add_motion_args(p)
     p.add_argument("--fid-weights", default=None, help="pt_inception-2015-12-05 weights for FID/KID (optional)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import add_motion_args, add_precision_arg, motion_kwargs, non_negative_int, positive_float, positive_int
+from sim2real.cli.args import add_motion_args, add_seg_iterations_arg, add_precision_arg, motion_kwargs, non_negative_int, positive_float, positive_int
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -57,8 +57,7 @@ def register(sub) -> None:
     p.add_argument("--batch", type=positive_int, default=8, help="frames per network call (default 8)")
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--max-real", type=positive_int, default=500, help="real images used for FID/KID (default 500)")
-    p.add_argument("--seg-iterations", type=non_negative_int, default=200,
-                   help="liver U-Net training steps, exactly (deterministic; default 200)")
+    add_seg_iterations_arg(p)
     p.add_argument("--seg-size", type=_size, default=(32, 64), metavar="HxW", help="segmenter image size (default 32x64)")
     p.add_argument("--orb-features", type=positive_int, default=1000)
     p.add_argument("--orb-max-k", type=positive_int, default=20, help="ORB curve up to this k (default 20)")

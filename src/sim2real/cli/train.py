@@ -121,16 +121,17 @@ def resume_config(args: argparse.Namespace, state: dict, path) -> tuple[object, 
     return cfg, changes
 
 
-def init_config(source):
-    """The configuration that ``--init-from SOURCE`` takes over: for the shipped model the YAML
-    beside its weights, else the checkpoint's."""
+def init_config(source) -> tuple:
+    """The configuration that ``--init-from SOURCE`` takes over, and the loaded checkpoint (None
+    when not read): for the shipped model the YAML beside its weights, else the checkpoint's."""
     # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real import shipped
     from sim2real.engine import checkpoint as ckpt
 
     if Path(source) == shipped.model_path():
-        return load_config(shipped.config_path())
-    return config_from_dict(ckpt.load_checkpoint(ckpt.find_run_checkpoint(source))["config"])
+        return load_config(shipped.config_path()), None
+    state = ckpt.load_checkpoint(ckpt.find_run_checkpoint(source))
+    return config_from_dict(state["config"]), state
 
 
 def run(args: argparse.Namespace) -> int:
@@ -140,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.engine.stop import exit_code, signal_name
     from sim2real.engine.trainer import Trainer
 
-    state = path = None
+    state = path = init_state = None
     changes = []
     if args.init_from and args.resume:
         raise UserError("--init-from starts a new run; it cannot be combined with --resume")
@@ -161,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
             raise UserError("no real image folder given (--real DIR)")
         if args.init_from:
             given_source, args.init_from = args.init_from, shipped.init_source(args.init_from)
-            source = init_config(args.init_from)
+            source, init_state = init_config(args.init_from)
             cfg = build_config(args, None if args.preset or args.config else source)
             overrides = differences(source, cfg)
             listed = ", ".join(f"{k} {_show(a)} -> {_show(b)}" for k, a, b in overrides) or "none"
@@ -170,7 +171,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             cfg = build_config(args)
     trainer = Trainer(cfg, scenes=args.scenes, real=args.real, out=args.out, resume=path,
-                      progress=not args.no_progress, resume_state=state, init_from=args.init_from)
+                      progress=not args.no_progress, resume_state=state, init_from=args.init_from,
+                      init_state=init_state)
     try:
         if changes and trainer.dist.is_main:
             listed = ", ".join(f"{k} {_show(a)} -> {_show(b)}" for k, a, b in changes)

@@ -82,7 +82,7 @@ class BenchmarkSettings:
     sequence_frames: int = 30
     frames: int = 100
     eval_views: int = 32
-    seg_iterations: int = 200
+    seg_iterations: int = EvalSettings.seg_iterations
     trajectory: dict = field(default_factory=dict)
     """Motion budget of the generated test paths (make_trajectory keywords)."""
     seeds: int = 1

@@ -150,16 +150,19 @@ class Trainer:
         resume: checkpoint to continue from (``out/checkpoints/last.pt`` for ``--resume``).
         progress: show the progress bar.
         resume_state: the already loaded checkpoint ``resume`` (saves reading it twice).
+        init_from: a run (or checkpoint) whose networks start this new run (``--init-from``).
+        init_state: the already loaded checkpoint of ``init_from``.
     """
 
     def __init__(self, cfg: TrainConfig, scenes=None, real=None, out=None, resume=None, progress: bool = True,
-                 resume_state: dict | None = None, init_from=None):
+                 resume_state: dict | None = None, init_from=None, init_state: dict | None = None):
         validate(cfg)
         if init_from is not None and (resume is not None or resume_state is not None):
             raise UserError("--init-from starts a new run; it cannot be combined with --resume")
         self.cfg = cfg
         self.init_from = None if init_from is None else ckpt.find_run_checkpoint(init_from)
-        init_state = None if self.init_from is None else ckpt.load_checkpoint(self.init_from)
+        if self.init_from is not None and init_state is None:
+            init_state = ckpt.load_checkpoint(self.init_from)
         self.method = get_method(cfg)
         state = resume_state if resume_state is not None else (ckpt.load_checkpoint(resume) if resume is not None else None)
         if state is not None:
