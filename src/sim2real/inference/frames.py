@@ -27,10 +27,10 @@ def auto_workers(cameras: Sequence) -> int:
     share less one for this process, which runs the network and writes the frames while the pool
     casts; at most one per frame), so 1 (in-process) on two cores.
 
-    The reserved core: on an idle 2-core CPU (256x512, small preset; docs/gpu.md#translation)
+    The reserved core: on an idle 2-core Intel Xeon (256x512, small preset; docs/gpu.md#translation)
     the command without the network ran at 11.3 frames/s casting in-process, 9.5 with a pool of
-    two and 8.3 with a pool of one (each frame then also crosses a pipe); end to end with bf16 at
-    2.42 against 2.08: while the cores are busy anyway, a pool only adds its transfers."""
+    two and 8.3 with a pool of one; end to end with bf16 at 2.42 against 2.08: while the cores
+    are busy anyway, a pool only adds work."""
     rays = sum(int(c.height) * int(c.width) for c in cameras)
     if rays < POOL_MIN_RAYS or len(cameras) < 4:
         return 1
