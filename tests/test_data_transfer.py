@@ -80,23 +80,18 @@ def test_worker_rule(monkeypatch, cores, ranks, jobs, reserve, expected):
     assert threads.worker_count(jobs=jobs, reserve=reserve) == expected
 
 
-@pytest.mark.parametrize("cores,frames_,expected", [
-    (32, 100, 31),  # every core but the translating process's (was capped at 4)
-    (64, 40, 40),  # at most one per frame
-    (32, 2, 1),  # too few rays for a pool
-    (2, 100, 1),  # two cores: cast in-process
-    (3, 100, 2),
-])
-def test_translate_ray_casting_uses_every_core_but_one(monkeypatch, cores, frames_, expected):
+def test_translate_ray_casting_uses_every_core(monkeypatch):
     from sim2real.inference import frames
 
-    monkeypatch.setattr(threads, "usable_cores", lambda: cores)
+    monkeypatch.setattr(threads, "usable_cores", lambda: 32)
+    monkeypatch.setattr(frames, "usable_cores", lambda: 32)
     monkeypatch.delenv("LOCAL_WORLD_SIZE", raising=False)
 
     class Cam:
         height, width = 256, 512
 
-    assert frames.auto_workers([Cam()] * frames_) == expected
+    assert frames.auto_workers([Cam()] * 100) == 32  # was capped at 4
+    assert frames.auto_workers([Cam()] * 2) == 1  # too few rays for a pool
 
 
 def test_a_ref_on_the_device_equals_the_reference_rendering(procedural_caster):

@@ -29,8 +29,7 @@ def register(sub) -> None:
     p.add_argument("--checkpoint", metavar="PATH", help="checkpoint file instead of RUN/checkpoints/last.pt")
     p.add_argument("--fps", type=positive_float, help="video frame rate (default: the trajectory's, else 5)")
     p.add_argument("--workers", type=positive_int,
-                   help="ray-casting processes (default: 1 for short or small trajectories, else one per core but one; "
-                        "1 casts in this process)")
+                   help="ray-casting processes (default: 1 for short or small trajectories, else one per core)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

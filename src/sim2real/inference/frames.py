@@ -14,7 +14,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 from sim2real.pool import WorkerPool
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.raycast import caster_setup, render_camera
-from sim2real.threads import worker_count
+from sim2real.threads import usable_cores, worker_count
 
 POOL_MIN_RAYS = 32 * 256 * 512
 """Below this many rays in all (about 2-3 s of casting on one core) the rays are cast in-process:
@@ -22,19 +22,13 @@ starting spawned workers (each loads the scene and builds its BVH) costs about a
 
 
 def auto_workers(cameras: Sequence) -> int:
-    """Ray-casting processes for ``cameras``: 1 (in-process) for short or small sequences, else
-    the project's worker rule (:func:`sim2real.threads.worker_count`: the cores of this process's
-    share less one for this process, which runs the network and writes the frames while the pool
-    casts; at most one per frame), so 1 (in-process) on two cores.
-
-    The reserved core: on an idle 2-core Intel Xeon (256x512, small preset; docs/gpu.md#translation)
-    the command without the network ran at 11.3 frames/s casting in-process, 9.5 with a pool of
-    two and 8.3 with a pool of one; end to end with bf16 at 2.42 against 2.08: while the cores
-    are busy anyway, a pool only adds work."""
+    """Ray-casting processes for ``cameras``: 1 (in-process) for short or small sequences or on
+    one core, else the project's worker rule (:func:`sim2real.threads.worker_count`: every core
+    of this process's share, at most one per frame)."""
     rays = sum(int(c.height) * int(c.width) for c in cameras)
-    if rays < POOL_MIN_RAYS or len(cameras) < 4:
+    if rays < POOL_MIN_RAYS or usable_cores() < 2 or len(cameras) < 4:
         return 1
-    return worker_count(jobs=len(cameras), reserve=1)
+    return worker_count(jobs=len(cameras))
 
 
 def iter_gbuffers(scene_dir: str | os.PathLike, cameras: Sequence, workers: int | None = None, chunk: int = 8,
