@@ -2,8 +2,10 @@
 
 Renders a procedural trajectory (not timed), then times write_frames (PNG), export_ground_truth
 (seconds per frame, everything of docs/formats.md "Ground-truth export", with the frames linked
-into tum/rgb) and write_video (frames/s, libx264 crf 18, each available backend).
-Usage: python benchmarks/bench_export.py [--frames 100] [--height 256] [--width 512]
+into tum/rgb), write_video (frames/s, libx264 crf 18, each available backend) and the
+translation's BackgroundFrameWriter (PNG frames and video, frames/s) with one PNG thread and with
+its default, alternating, medians of --repeats.
+Usage: python benchmarks/bench_export.py [--frames 100] [--height 256] [--width 512] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -12,12 +14,13 @@ import argparse
 import json
 import os
 import platform
+import statistics
 import tempfile
 import time
 from pathlib import Path
 
 from sim2real.inference.export import export_ground_truth
-from sim2real.inference.video import _pyav_has_libx264, write_frames, write_video
+from sim2real.inference.video import BackgroundFrameWriter, _pyav_has_libx264, write_frames, write_video
 from sim2real.render.raycast import RayCaster
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.scene.procedural import generate_scene
@@ -29,6 +32,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--height", type=int, default=256)
     ap.add_argument("--width", type=int, default=512)
+    ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     caster = RayCaster(generate_scene(0))
     traj = make_trajectory(caster, frames=args.frames, height=args.height, width=args.width, seed=1)
@@ -59,6 +63,19 @@ def main() -> None:
             dt = time.perf_counter() - t
             result[f"video_{backend}_frames_per_s"] = round(args.frames / dt, 1)
             result[f"video_{backend}_kib"] = round(path.stat().st_size / 1024, 1)
+        writer = {"one_png_thread": 1, "default": None}
+        times = {k: [] for k in writer}
+        for r in range(args.repeats):
+            for k, threads in writer.items():
+                d = out / f"writer_{k}_{r}"
+                d.mkdir()
+                t = time.perf_counter()
+                with BackgroundFrameWriter(d, d / "video.mp4", traj.fps, png_threads=threads) as w:
+                    for f in frames:
+                        w.put(f)
+                times[k].append(time.perf_counter() - t)
+        for k in writer:
+            result[f"background_writer_{k}_frames_per_s"] = round(args.frames / statistics.median(times[k]), 1)
     print(json.dumps(result, indent=2))
 
 

@@ -79,3 +79,43 @@ def test_background_writer_raises_the_writers_error_in_the_caller(tmp_path):
             for k in range(40):  # frame 2 has another size: the writer stops, the caller hears of it
                 w.put(np.zeros((18, 30 if k != 2 else 32, 3), np.uint8))
     assert not (tmp_path / "v.mp4").exists()
+
+
+def test_background_writer_encodes_pngs_in_several_threads(tmp_path, monkeypatch):
+    """Frames go to the PNG threads (more than one at work), each file holds its own frame, and
+    the video holds all of them in order."""
+    import threading
+    import time
+
+    from sim2real.inference import video
+
+    writers, write = set(), video.atomic_write_image
+
+    def slow_write(path, image):
+        writers.add(threading.current_thread().name)
+        time.sleep(0.02)  # long enough that the next frame finds the first thread busy
+        write(path, image)
+
+    monkeypatch.setattr(video, "atomic_write_image", slow_write)
+    frames = smooth_frames(9, 18, 30)
+    (tmp_path / "f").mkdir()
+    with video.BackgroundFrameWriter(tmp_path / "f", tmp_path / "v.mp4", fps=5.0, depth=4, png_threads=3) as w:
+        for f in frames:
+            w.put(f)
+    assert w.count == 9 and len(writers) > 1 and all(n.startswith("png-writer") for n in writers)
+    for k, f in enumerate(frames):
+        assert np.array_equal(np.asarray(Image.open(tmp_path / "f" / f"{k:06d}.png")), f)
+    dec = read_video_frames(tmp_path / "v.mp4").astype(float)
+    dist = np.abs(dec[:, None] - np.stack(frames)[None]).mean(axis=(2, 3, 4))  # decoded x written
+    assert np.array_equal(dist.argmin(axis=1), np.arange(9))  # each decoded frame is nearest its own
+
+
+def test_background_writer_raises_a_failed_png_write_in_the_caller(tmp_path):
+    from sim2real.inference.video import BackgroundFrameWriter
+
+    (tmp_path / "f").write_text("a file where the frames folder should be")
+    with pytest.raises(OSError):
+        with BackgroundFrameWriter(tmp_path / "f", tmp_path / "v.mp4", fps=5.0, depth=1, png_threads=2) as w:
+            for f in smooth_frames(40, 18, 30):
+                w.put(f)
+    assert not (tmp_path / "v.mp4").exists()

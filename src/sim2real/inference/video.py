@@ -9,16 +9,17 @@ bottom and/or right edge (repeating the last row / column), so a 45x77 sequence 
 46x78 video whose top-left 45x77 pixels are the frames; the PNG frames (:func:`write_frames`)
 keep the exact size. The video is written under a temporary name and renamed when complete.
 
-:class:`BackgroundFrameWriter` writes the PNG frames and encodes the video in a thread, so that
-``sim2real translate`` translates the next frames meanwhile (PNG's zlib and libx264 release the
-GIL).
+:class:`BackgroundFrameWriter` writes the PNG frames (in threads) and encodes the video (in one)
+while ``sim2real translate`` translates the next frames (PNG's zlib and libx264 release the GIL).
 """
 
 from __future__ import annotations
 
+import collections
 import os
 import queue
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from fractions import Fraction
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -29,6 +30,7 @@ import numpy as np
 
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_path, atomic_write_image, prepare_output_dir
+from sim2real.threads import worker_count
 
 CRF = 18
 
@@ -166,38 +168,51 @@ def write_frames(frames: Iterable[np.ndarray], out_dir: str | os.PathLike) -> li
 
 
 class BackgroundFrameWriter:
-    """PNG frames ``frames_dir/000000.png ...`` and an H.264 video of them, written by one thread
-    while the caller produces the next frames::
+    """PNG frames ``frames_dir/000000.png ...`` and an H.264 video of them, written while the
+    caller produces the next frames::
 
         with BackgroundFrameWriter(frames_dir, video_path, fps) as w:
             for frame in frames:
                 w.put(frame)
         count = w.count
 
-    At most ``depth`` frames wait in the queue (memory stays bounded). An error of the writer
-    (an odd frame, a full disk) is raised in the caller at its next :meth:`put` or at the end of
-    the block; an error of the caller stops the writer, leaving the video unfinished (its
-    temporary file removed)."""
+    One thread encodes the video; the PNG frames are encoded by ``png_threads`` more (default:
+    the worker rule, :func:`sim2real.threads.worker_count`), since PNG's zlib costs three times
+    libx264 per frame (12.2 against 4.1 ms at 256x512): one thread for both wrote 55 frames/s,
+    this writer 97 on two cores (benchmarks/bench_export.py), the ceiling of a translation
+    whose network is fast.
+    At most ``depth`` frames wait in the queue and ``2 * png_threads`` in the PNG threads
+    (memory stays bounded). An error of the writer (an odd frame, a full disk) is raised in the
+    caller at its next :meth:`put` or at the end of the block; an error of the caller stops the
+    writer, leaving the video unfinished (its temporary file removed)."""
 
-    def __init__(self, frames_dir: str | os.PathLike, video: str | os.PathLike, fps: float, depth: int = 16):
+    def __init__(self, frames_dir: str | os.PathLike, video: str | os.PathLike, fps: float, depth: int = 16,
+                 png_threads: int | None = None):
         self.frames_dir, self.video, self.fps = Path(frames_dir), Path(video), float(fps)
         self._queue: queue.Queue = queue.Queue(maxsize=max(1, int(depth)))
+        self._png_threads = worker_count() if png_threads is None else max(1, int(png_threads))
         self._error: BaseException | None = None
         self._abort = False
         self.count = 0
         self._thread = threading.Thread(target=self._run, name="frame-writer", daemon=True)
 
     def _frames(self) -> Iterator[np.ndarray]:
-        i = 0
-        while True:
-            frame = self._queue.get()
-            if frame is None:
-                return
-            if self._abort:
-                raise RuntimeError("frame writer stopped")
-            atomic_write_image(self.frames_dir / f"{i:06d}.png", frame)
-            i += 1
-            yield frame
+        with ThreadPoolExecutor(self._png_threads, thread_name_prefix="png-writer") as pool:
+            pending: collections.deque = collections.deque()
+            i = 0
+            while True:
+                frame = self._queue.get()
+                if frame is None:
+                    break
+                if self._abort:
+                    raise RuntimeError("frame writer stopped")
+                pending.append(pool.submit(atomic_write_image, self.frames_dir / f"{i:06d}.png", frame))
+                while pending and (len(pending) > 2 * self._png_threads or pending[0].done()):
+                    pending.popleft().result()  # in order; a failed write raises here
+                i += 1
+                yield frame
+            for f in pending:
+                f.result()
 
     def _run(self) -> None:
         try:
