@@ -12,7 +12,14 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import add_motion_args, add_seg_iterations_arg, motion_kwargs, non_negative_int, positive_float, positive_int
+from sim2real.cli.args import (
+    add_motion_args,
+    add_seg_iterations_arg,
+    motion_kwargs,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
 from sim2real.presets import METHOD_PRESETS, PRESETS
 
 DEFAULT_MINUTES = 20.0

@@ -15,7 +15,14 @@ from __future__ import annotations
 import argparse
 import time
 
-from sim2real.cli.args import add_motion_args, add_seg_iterations_arg, motion_kwargs, non_negative_int, positive_float, positive_int
+from sim2real.cli.args import (
+    add_motion_args,
+    add_seg_iterations_arg,
+    motion_kwargs,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, prepare_output_dir
 from sim2real.presets import PRESETS, budgeted, config_from_dict, default_preset

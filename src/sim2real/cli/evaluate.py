@@ -15,7 +15,15 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import add_motion_args, add_seg_iterations_arg, add_precision_arg, motion_kwargs, non_negative_int, positive_float, positive_int
+from sim2real.cli.args import (
+    add_motion_args,
+    add_precision_arg,
+    add_seg_iterations_arg,
+    motion_kwargs,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
 
 
 def _size(text: str) -> tuple[int, int]:

@@ -184,7 +184,7 @@ def weight_free_realism(scored: dict[str, list], real_imgs: Sequence[np.ndarray]
     and the held-out half is the ``real_held_out`` row, the value of real frames themselves (the
     null). ``c2st`` is the classifier test's held-out AUC (0.5: indistinguishable from real; its
     accuracy and binomial p-value are in ``details``: the AUC ranked the validation ladder at
-    every seed, the accuracy at a fixed logit threshold did not),
+    every seed, the accuracy at the logit threshold 0 did not; docs/evaluation.md),
     ``random_kid`` the unbiased KID in a fixed random network's features (0: as real).
     """
     out: dict[str, dict] = {}

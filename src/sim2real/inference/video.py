@@ -181,6 +181,7 @@ class BackgroundFrameWriter:
     libx264 per frame (12.2 against 4.1 ms at 256x512): one thread for both wrote 55 frames/s,
     this writer 97 on two cores (benchmarks/bench_export.py), the ceiling of a translation
     whose network is fast.
+
     At most ``depth`` frames wait in the queue and ``2 * png_threads`` in the PNG threads
     (memory stays bounded). An error of the writer (an odd frame, a full disk) is raised in the
     caller at its next :meth:`put` or at the end of the block; an error of the caller stops the
