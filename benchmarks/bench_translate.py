@@ -171,6 +171,7 @@ def main() -> None:
                 # CPU seconds of this process and its finished workers per wall second: below the
                 # core count, cores idle (there overlapping more stages would pay)
                 res["pipeline_busy_cores"] = (_cpu_seconds() - c0) / wall
+                # the share of the command after its last frame: the ground truth still to be written
                 res["pipeline_ground_truth_share"] = 1 - m["seconds"]["translate"] / m["seconds"]["total"]
             results[name] = res
 

@@ -11,7 +11,7 @@ from train_data import real_dir, scene_dir
 
 from sim2real.cli.main import main
 from sim2real.inference.evaluate import EvalSettings, evaluate, find_real
-from sim2real.inference.report import svg_line_plot
+from sim2real.inference.svg import svg_line_plot
 from sim2real.inference.rows import pool_orb
 
 TOP_KEYS = {"format", "run", "settings", "inputs", "fid", "kid_mean", "kid_std", "fid_kid", "proxy", "dice", "dice_a_ref",

@@ -7,10 +7,10 @@ import pytest
 from PIL import Image
 
 from sim2real.errors import UserError
-from sim2real.inference.export import (
+from sim2real.inference.export import GroundTruthWriter, export_ground_truth
+from sim2real.inference.gt_formats import (
     FLO_MAGIC,
     depth_to_png16,
-    export_ground_truth,
     read_depth_png,
     read_flo,
     read_tum_poses,
@@ -193,3 +193,84 @@ def test_export_refuses_to_mix_and_without_rgb_writes_reference(gbuffers, export
     assert img.shape == (48, 80, 3) and img.dtype == np.uint8 and img.max() > 0
     with pytest.raises(UserError, match="does not exist"):
         export_ground_truth(gbuffers[:2], tmp_path / "other", rgb_frames_rel=["a.png", "b.png"])
+
+
+def _trajectory_cameras(caster, frames, height=48, width=80):
+    from sim2real.scene.trajectory import make_trajectory
+
+    return make_trajectory(caster, frames=30, height=height, width=width, seed=3).cameras[:frames]
+
+
+def test_streaming_writer_writes_as_frames_arrive_and_keeps_few(procedural_caster, tmp_path):
+    """With one thread at most two frames are in flight: after 8 of 12 frames, frames 0-4 are on
+    disk (the manifest is not), and of the 12 G-buffers made on the fly at most four are alive."""
+    import gc
+    import weakref
+
+    out = tmp_path / "gt"
+    alive = []
+    with GroundTruthWriter(out, fps=5.0, threads=1) as writer:
+        for i, cam in enumerate(_trajectory_cameras(procedural_caster, 12)):
+            g = procedural_caster.render(cam)
+            alive.append(weakref.ref(g))
+            writer.add(g)
+            del g
+            if i == 7:  # frames 0..6 submitted, at most two of them still pending
+                assert all((out / "depth" / f"{k:06d}.png").is_file() for k in range(5))
+                assert not (out / "ground_truth.json").exists()
+        gc.collect()
+        assert sum(r() is not None for r in alive) <= 4
+        manifest = writer.close()
+    assert manifest["frames"] == 12 and manifest["flow_frames"] == 11
+    assert len(list((out / "flow").glob("*.flo"))) == 11 and len(list((out / "tum" / "rgb").glob("*.png"))) == 12
+
+
+def test_streaming_writer_matches_the_views_it_was_given(procedural_caster, tmp_path):
+    """Frame by frame, in several threads, each file belongs to its own frame: depth and flow read
+    back equal what the G-buffers give directly."""
+    gb = [procedural_caster.render(c) for c in _trajectory_cameras(procedural_caster, 7)]
+    with GroundTruthWriter(tmp_path / "gt", fps=2.0, threads=3) as writer:
+        for g in gb:
+            writer.add(g)
+        writer.close()
+    for i, g in enumerate(gb):
+        depth = np.load(tmp_path / "gt" / "depth_npy" / f"{i:06d}.npy")
+        assert np.array_equal(depth, np.where(g.mask, g.depth, 0).astype(np.float32))
+        if i + 1 < len(gb):
+            assert np.allclose(read_flo(tmp_path / "gt" / "flow" / f"{i:06d}.flo"), gt_flow(g, gb[i + 1])[0])
+
+
+def test_streaming_writer_errors(procedural_caster, tmp_path, monkeypatch):
+    import sim2real.inference.export as export_mod
+
+    cams = _trajectory_cameras(procedural_caster, 5)
+    gb = [procedural_caster.render(c) for c in cams]
+    with pytest.raises(UserError, match="nothing to export"):
+        GroundTruthWriter(tmp_path / "empty").close()
+    with GroundTruthWriter(tmp_path / "size") as writer:
+        writer.add(gb[0])
+        with pytest.raises(UserError, match="frame 1 is 24x40, frame 0 is 48x80; a video has one size"):
+            writer.add(procedural_caster.render(_trajectory_cameras(procedural_caster, 1, 24, 40)[0]))
+    # The video's RGB frames must exist when the export closes; no manifest otherwise.
+    with pytest.raises(UserError, match="does not exist"):
+        with GroundTruthWriter(tmp_path / "rgb", rgb_frames_rel=["a.png", "b.png"]) as writer:
+            writer.add(gb[0])
+            writer.add(gb[1])
+            writer.close()
+    assert not (tmp_path / "rgb" / "ground_truth.json").exists()
+    # A failed write in a thread reaches the caller; no manifest.
+    calls = []
+
+    def failing_write_flo(path, flow):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError("No space left on device")
+        write_flo(path, flow)
+
+    monkeypatch.setattr(export_mod, "write_flo", failing_write_flo)
+    with pytest.raises(OSError, match="No space left"):
+        with GroundTruthWriter(tmp_path / "full", threads=1) as writer:
+            for g in gb:
+                writer.add(g)
+            writer.close()
+    assert not (tmp_path / "full" / "ground_truth.json").exists()

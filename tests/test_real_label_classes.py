@@ -16,6 +16,7 @@ from sim2real.errors import UserError
 from sim2real.footage.labels import read_label_map
 from sim2real.inference import dice as dice_mod
 from sim2real.inference.realimages import find_real, shared_classes
+from sim2real.inference.report import class_dice_blocks
 from sim2real.inference.stages import ViewSet, segmentation_stage
 from sim2real.scene.classes import ClassTable
 
@@ -117,6 +118,13 @@ def test_segmenters_learn_every_class_the_scene_shares(labelled_set, tmp_path, m
     assert seg["info"]["class_dice"]["fat"]["model"] == pytest.approx(d["fat"]["value"])
     assert seg["info"]["class_dice"]["tumour"] == {"model": None, "a_ref": None}
     assert seg["rows"]["model"] == pytest.approx(d["liver"]["value"])
+    # the report gives each class's row: the frames' Dice per row and the held-out real images'
+    blocks = class_dice_blocks({"dice_info": seg["info"]})
+    header, table = blocks[-1][1], {r[0]: r[1:] for r in blocks[-1][2]}
+    assert header == ["class", "translated views", "a_ref (untranslated)", "held-out real images"]
+    assert list(table) == list(classes) and table["tumour"] == ["n/a", "n/a", f"{per_class['tumour']:.4g}"]
+    assert table["fat"] == [f"{d['fat']['value']:.4g}"] * 2 + [f"{per_class['fat']:.4g}"]
+    assert class_dice_blocks({"dice_info": {k: v for k, v in seg["info"].items() if k != "class_dice"}}) == []
 
 
 def test_a_class_with_another_id_in_the_scene_is_refused(labelled_set):

@@ -17,7 +17,8 @@ from sim2real.fileio import atomic_write_image, atomic_write_text
 from sim2real.grid import tile
 from sim2real.inference.anchors import Anchors, stand_in_options
 from sim2real.inference.frames import iter_gbuffers
-from sim2real.inference.report import COLOURS, _fmt_tick, _html, _nice_ticks
+from sim2real.inference.report import _html
+from sim2real.inference.svg import COLOURS, fmt_tick, nice_ticks
 from sim2real.inference.translate import load_run
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.scene.scene import Scene
@@ -43,7 +44,7 @@ def svg_bar_chart(values: dict[str, float | None], title: str, refs: dict[str, f
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{H}" viewBox="0 0 {width} {H}" '
            f'font-family="sans-serif" font-size="11">', f'<rect width="{width}" height="{H}" fill="white"/>',
            f'<text x="{width / 2:.1f}" y="18" text-anchor="middle" font-size="13">{html.escape(title)}</text>']
-    ticks = _nice_ticks(min(0.0, *vals) if vals else 0.0, max(vals) if vals else 1.0)
+    ticks = nice_ticks(min(0.0, *vals) if vals else 0.0, max(vals) if vals else 1.0)
     lo, hi = ticks[0], ticks[-1]
     pw = width - ml - mr
 
@@ -53,7 +54,7 @@ def svg_bar_chart(values: dict[str, float | None], title: str, refs: dict[str, f
     y_axis = mt + bar_h * len(values)
     for t in ticks:
         out.append(f'<line x1="{X(t):.1f}" y1="{mt}" x2="{X(t):.1f}" y2="{y_axis}" stroke="#eee"/>')
-        label = f"{100 * t:g}%" if percent else _fmt_tick(t)
+        label = f"{100 * t:g}%" if percent else fmt_tick(t)
         out.append(f'<text x="{X(t):.1f}" y="{y_axis + 14}" text-anchor="middle">{label}</text>')
     for k, (name, v) in enumerate(values.items()):
         y = mt + k * bar_h
@@ -68,7 +69,7 @@ def svg_bar_chart(values: dict[str, float | None], title: str, refs: dict[str, f
         out.append(f'<line x1="{X(v):.1f}" y1="{mt}" x2="{X(v):.1f}" y2="{y_axis}" stroke="{c}" stroke-dasharray="4 3"/>')
         ly = y_axis + 30 + 16 * j
         out.append(f'<line x1="{ml}" y1="{ly - 4}" x2="{ml + 20}" y2="{ly - 4}" stroke="{c}" stroke-dasharray="4 3"/>')
-        out.append(f'<text x="{ml + 26}" y="{ly}">{html.escape(name)} {_fmt_tick(v)}</text>')
+        out.append(f'<text x="{ml + 26}" y="{ly}">{html.escape(name)} {fmt_tick(v)}</text>')
     out.append("</svg>")
     return "\n".join(out)
 

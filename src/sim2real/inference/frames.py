@@ -1,5 +1,5 @@
 """G-buffers of a frame sequence, streamed: ray casting in order, in-process or in a process pool,
-and a disk-backed sequence so that long trajectories never sit in memory at once.
+chunk by chunk, so that long trajectories never sit in memory at once.
 
 This module imports no torch: the spawned ray-casting workers load only numpy and Embree (and
 trimesh when no caster is given, to load the scene themselves).
@@ -8,8 +8,7 @@ trimesh when no caster is given, to load the scene themselves).
 from __future__ import annotations
 
 import os
-from pathlib import Path
-from typing import Callable, Iterable, Iterator, Sequence
+from typing import Iterable, Iterator, Sequence
 
 from sim2real.pool import WorkerPool
 from sim2real.render.gbuffer import GBuffer
@@ -64,33 +63,3 @@ def chunked(items: Iterable, size: int) -> Iterator[list]:
             buf = []
     if buf:
         yield buf
-
-
-class LazyGBuffers(Sequence):
-    """A read-only sequence of G-buffers stored as view files, loaded on each access.
-
-    ``on_first_access(i)`` is called the first time index ``i`` is read (progress reporting).
-    Thread-safe enough for :func:`sim2real.inference.export.export_ground_truth`'s thread pool:
-    every access loads its own copy.
-    """
-
-    def __init__(self, paths: Sequence[str | os.PathLike], on_first_access: Callable[[int], None] | None = None):
-        self.paths = [Path(p) for p in paths]
-        self._seen: set[int] = set()
-        self._cb = on_first_access
-
-    def __len__(self) -> int:
-        return len(self.paths)
-
-    def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self[k] for k in range(*i.indices(len(self)))]
-        if i < 0:
-            i += len(self)
-        if not 0 <= i < len(self):
-            raise IndexError(i)
-        g = GBuffer.load(self.paths[i])
-        if self._cb is not None and i not in self._seen:
-            self._seen.add(i)
-            self._cb(i)
-        return g

@@ -1,7 +1,7 @@
 """The evaluation report: ``report.md`` (plots as SVG files, samples as PNG files beside it) and a
 self-contained ``report.html`` (inline SVG plots, sample images embedded as data URIs).
 
-Plots are hand-written SVG (no plotting library is a dependency of the project).
+Plots are hand-written SVG (:mod:`sim2real.inference.svg`).
 """
 
 from __future__ import annotations
@@ -9,107 +9,10 @@ from __future__ import annotations
 import base64
 import html
 import json
-import math
 from pathlib import Path
-from typing import Sequence
 
 from sim2real.fileio import atomic_write_text
-
-COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f")
-
-
-# --- SVG line plots ------------------------------------------------------------------------------
-
-
-def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
-    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
-        hi = lo + 1.0
-    raw = (hi - lo) / max(n, 1)
-    mag = 10 ** math.floor(math.log10(raw))
-    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw)
-    start = math.floor(lo / step) * step
-    ticks, t = [], start
-    while t <= hi + 1e-9 * step:
-        ticks.append(round(t, 10))
-        t += step
-    if ticks[-1] < hi - 1e-9 * step:  # the axis ends on a tick above the data
-        ticks.append(round(ticks[-1] + step, 10))
-    return ticks
-
-
-def _fmt_tick(v: float) -> str:
-    return f"{v:g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.1e}"
-
-
-def svg_line_plot(series: dict[str, Sequence[tuple[float, float | None]]], title: str, xlabel: str, ylabel: str,
-                  width: int = 560, height: int = 320, y_min: float | None = None, y_max: float | None = None,
-                  y_percent: bool = False) -> str:
-    """A line plot as an SVG string. ``series``: name -> [(x, y or None)]; None breaks the line."""
-    pts = [(x, y) for s in series.values() for x, y in s if y is not None and math.isfinite(y)]
-    ml, mr, mt, mb = 62, 16, 30, 46
-    legend_h = 16 * len(series)
-    H = height + legend_h
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{H}" viewBox="0 0 {width} {H}" '
-           f'font-family="sans-serif" font-size="11">',
-           f'<rect width="{width}" height="{H}" fill="white"/>',
-           f'<text x="{width / 2:.1f}" y="18" text-anchor="middle" font-size="13">{html.escape(title)}</text>']
-    if not pts:
-        out.append(f'<text x="{width / 2:.1f}" y="{height / 2:.1f}" text-anchor="middle" fill="#888">no data</text></svg>')
-        return "\n".join(out)
-    xs = [p[0] for p in pts]
-    ys = [p[1] for p in pts]
-    x0, x1 = min(xs), max(xs)
-    if x1 == x0:
-        x0, x1 = x0 - 1, x1 + 1
-    lo = min(ys) if y_min is None else y_min
-    hi = max(ys) if y_max is None else y_max
-    if hi <= lo:
-        hi = lo + (abs(lo) or 1.0)
-    yt = _nice_ticks(lo, hi)
-    lo, hi = min(lo, yt[0]), max(hi, yt[-1])
-    pw, ph = width - ml - mr, height - mt - mb
-
-    def X(x: float) -> float:
-        return ml + (x - x0) / (x1 - x0) * pw
-
-    def Y(y: float) -> float:
-        return mt + ph - (y - lo) / (hi - lo) * ph
-
-    out.append(f'<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>')
-    for t in yt:
-        label = f"{100 * t:g}%" if y_percent else _fmt_tick(t)
-        out.append(f'<line x1="{ml}" y1="{Y(t):.1f}" x2="{ml + pw}" y2="{Y(t):.1f}" stroke="#ddd"/>')
-        out.append(f'<text x="{ml - 5}" y="{Y(t) + 4:.1f}" text-anchor="end">{label}</text>')
-    for t in _nice_ticks(x0, x1, 10):
-        if x0 - 1e-9 <= t <= x1 + 1e-9:
-            out.append(f'<line x1="{X(t):.1f}" y1="{mt + ph}" x2="{X(t):.1f}" y2="{mt + ph + 4}" stroke="#444"/>')
-            out.append(f'<text x="{X(t):.1f}" y="{mt + ph + 16}" text-anchor="middle">{_fmt_tick(t)}</text>')
-    out.append(f'<text x="{ml + pw / 2:.1f}" y="{mt + ph + 34}" text-anchor="middle">{html.escape(xlabel)}</text>')
-    out.append(f'<text transform="translate(14 {mt + ph / 2:.1f}) rotate(-90)" text-anchor="middle">{html.escape(ylabel)}</text>')
-    for k, (name, s) in enumerate(series.items()):
-        c = COLOURS[k % len(COLOURS)]
-        runs, cur = [], []
-        for x, y in s:
-            if y is None or not math.isfinite(y):
-                if cur:
-                    runs.append(cur)
-                cur = []
-            else:
-                cur.append((X(x), Y(y)))
-        if cur:
-            runs.append(cur)
-        for r in runs:
-            if len(r) > 1:
-                d = " ".join(f"{a:.1f},{b:.1f}" for a, b in r)
-                out.append(f'<polyline points="{d}" fill="none" stroke="{c}" stroke-width="1.8"/>')
-            for a, b in r:
-                out.append(f'<circle cx="{a:.1f}" cy="{b:.1f}" r="2.4" fill="{c}"/>')
-        ly = height + 4 + 16 * k
-        out.append(f'<line x1="{ml}" y1="{ly}" x2="{ml + 20}" y2="{ly}" stroke="{c}" stroke-width="2"/>')
-        out.append(f'<text x="{ml + 26}" y="{ly + 4}">{html.escape(name)}</text>')
-    out.append("</svg>")
-    return "\n".join(out)
-
+from sim2real.inference.svg import svg_line_plot
 
 # --- formatting ----------------------------------------------------------------------------------
 
@@ -129,6 +32,11 @@ def _orb_cell(e: dict) -> str:
     return f"{acc} ({e['mean_correct']:.1f})"
 
 
+def _segmenters(m: dict) -> str:
+    n = len(m["dice_info"].get("classes") or {})
+    return "liver U-Nets" if n <= 1 else f"U-Nets of {n} classes (the liver's Dice)"
+
+
 def _dice_row(m: dict, row: str, label: str, note: str) -> list[str]:
     d = m["dice_info"].get("rows", {}).get(row)
     if d is None:
@@ -136,6 +44,28 @@ def _dice_row(m: dict, row: str, label: str, note: str) -> list[str]:
     spread = "" if d["spread"] is None else f" (seeds {', '.join(f'{v:.3f}' for v in d['per_seed'])})"
     value = _num(d["value"]) + (f" ± {d['stderr']:.3f}" if d.get("stderr") else "")  # its standard error
     return [label, value, (d["reason"] or note) + spread]
+
+
+_DICE_ROW_NAMES = {"model": "translated views", "a_ref": "a_ref (untranslated)", "ceiling": "ceiling"}
+
+
+def class_dice_blocks(m: dict) -> list[tuple]:
+    """With segmenters of several classes: each class's Dice on every row's frames and on the
+    held-out real images (mean over the seeds); nothing with the liver alone."""
+    info = m["dice_info"]
+    per_class = info.get("class_dice")
+    if not per_class:
+        return []
+    rows_shown = list(next(iter(per_class.values())))
+    table = []
+    for c, by_row in per_class.items():
+        held = [s["held_out_dice_classes"][c] for s in info.get("per_seed", [])
+                if (s.get("held_out_dice_classes") or {}).get(c) is not None]
+        table.append([c] + [_num(by_row[r]) for r in rows_shown] + [_num(sum(held) / len(held) if held else None)])
+    return [("h", 3, "Dice per class"),
+            ("p", "The same segmenters, one output per class the real labels and the scenes share; n/a for a "
+                  "class in none of the views (its Dice would measure nothing). The liver's is the Dice above."),
+            ("table", ["class"] + [_DICE_ROW_NAMES.get(r, r) for r in rows_shown] + ["held-out real images"], table)]
 
 
 def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
@@ -165,7 +95,7 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
         ["FID", _num(m["fid"]), r["fid"] or f"{fk['n_gen']} generated vs {fk['n_real']} real images, FID Inception weights {fk['weights']}"],
         ["KID (mean ± std)", kid, r["fid"] or f"{fk['kid_subsets']} subsets of {fk['kid_subset_size']}"],
         _dice_row(m, "model", "Dice, translated views",
-                  f"mean over {m['dice_info'].get('seeds', 1)} liver U-Nets trained on {m['dice_info']['n_train']} labelled "
+                  f"mean over {m['dice_info'].get('seeds', 1)} {_segmenters(m)} trained on {m['dice_info']['n_train']} labelled "
                   f"real images, evaluated on {m['dice_info']['n_eval']} views"),
         _dice_row(m, "a_ref", "Dice, reference rendering a_ref (untranslated)", "the same segmenters on the simulated input"),
         _dice_row(m, "ceiling", "Dice, ceiling (the stand-in on the simulated views)", "real look, simulated labels"),
@@ -181,6 +111,7 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
     if m["fid"] is None:
         b.append(("p", f"FID and KID are not reported: {r['fid']}"))
     b.append(("table", ["metric", "value", "note"], rows))
+    b += class_dice_blocks(m)
 
     b.append(("h", 2, "Temporal consistency"))
     b.append(("p", "ORB-k: accuracy of cross-checked ORB matches between frames k apart (correct when the two 3D points "

@@ -47,8 +47,8 @@ from sim2real.engine.checkpoint import LAST, load_checkpoint
 from sim2real.engine.trainer import resolve_device
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, deferred_fsync, fsync_files, prepare_output_dir
-from sim2real.inference.export import export_ground_truth
-from sim2real.inference.frames import LazyGBuffers, chunked, iter_gbuffers, iter_view_files
+from sim2real.inference.export import GroundTruthWriter
+from sim2real.inference.frames import chunked, iter_gbuffers, iter_view_files
 from sim2real.inference.realimages import to_nchw
 from sim2real.inference.video import BackgroundFrameWriter, _rate
 from sim2real.methods import get_method
@@ -374,8 +374,10 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
     the translated frames) and, last, ``translate.json``. G-buffers are streamed: a chunk of
     frames is ray-cast (or read; by every core, :func:`sim2real.inference.frames.iter_gbuffers`),
     translated, and handed to a writer thread that writes the PNG frames and encodes the video
-    while the next chunk is translated (:class:`~sim2real.inference.video.BackgroundFrameWriter`);
-    each G-buffer is kept only as an uncompressed scratch file for the export (deleted at the end).
+    (:class:`~sim2real.inference.video.BackgroundFrameWriter`) and to threads that write its
+    ground truth (:class:`~sim2real.inference.export.GroundTruthWriter`) while the next chunk is
+    translated; no G-buffer outlives its chunk by more than a few frames, so neither memory nor
+    disk grows with the trajectory beyond its output.
 
     Everything is written into a hidden sibling folder without a flush per file; when complete,
     all its files are flushed to disk at once and the folder is renamed to ``out``: a reader sees
@@ -404,26 +406,19 @@ def _translate_into(model: TrainedModel, source: TranslateSource, out: Path, bat
     n = source.frames
     frames_dir = out / "frames"
     frames_dir.mkdir()
-    scratch = out / ".gbuffers"
     t0 = time.perf_counter()
-    bar = tqdm(total=n, desc="translate", unit="frame", disable=not progress)
     size: list[tuple[int, int]] = []
-    try:
-        if source.cameras is not None:
-            scratch.mkdir()
-            gbuffers = iter_gbuffers(source.scene_dir, source.cameras, workers=workers, chunk=batch)
-            gt_paths = [scratch / f"{i:06d}.npz" for i in range(n)]
-        else:
-            gbuffers = iter_view_files(source.view_files)
-            gt_paths = list(source.view_files)
-
-        i = 0
-        seq = model.sequence(source.scene_name, batch)  # one sequence: a stateful method continues
+    if source.cameras is not None:
+        gbuffers = iter_gbuffers(source.scene_dir, source.cameras, workers=workers, chunk=batch)
+    else:
+        gbuffers = iter_view_files(source.view_files)
+    i = 0
+    seq = model.sequence(source.scene_name, batch)  # one sequence: a stateful method continues
+    # the frames are named relative to ground_truth/ (../frames/...)
+    with tqdm(total=n, desc="translate", unit="frame", disable=not progress) as bar, \
+            GroundTruthWriter(out / "ground_truth", fps, [f"../frames/{k:06d}.png" for k in range(n)]) as gt:
         with BackgroundFrameWriter(frames_dir, out / "video.mp4", fps, depth=2 * batch) as writer:
             for chunk in chunked(gbuffers, batch):
-                if source.cameras is not None:
-                    for k, g in enumerate(chunk):
-                        g.save(gt_paths[i + k], durable=False)
                 for f in seq.translate(chunk):
                     if not size:
                         size.append(f.shape[:2])
@@ -433,18 +428,11 @@ def _translate_into(model: TrainedModel, source: TranslateSource, out: Path, bat
                     writer.put(f)
                     i += 1
                     bar.update()
+                for g in chunk:
+                    gt.add(g)
         count = writer.count
-        bar.close()
         translate_s = time.perf_counter() - t0
-        gt_bar = tqdm(total=n, desc="ground truth", unit="frame", disable=not progress)
-        (out / "ground_truth").mkdir()  # the frames are named relative to it (../frames/...)
-        export_ground_truth(LazyGBuffers(gt_paths, lambda i: gt_bar.update()), out / "ground_truth", fps=fps,
-                            rgb_frames_rel=[f"../frames/{i:06d}.png" for i in range(n)])
-        gt_bar.close()
-    finally:
-        bar.close()
-        if scratch.exists():
-            shutil.rmtree(scratch, ignore_errors=True)
+        gt.close()
     h, w = size[0]
     manifest = {
         "format": FORMAT,
