@@ -16,13 +16,16 @@ values) on a procedural scene, then measures
 ``--precisions auto,fp32,bf16`` measures each network arithmetic (``sim2real translate
 --precision``; 'auto' is the run's bf16 with channels-last on CUDA, fp32 on the CPU), each
 timed pass alternating between them, and reports every later precision's frames against the
-first's: mean, 99th percentile and largest absolute difference in 8-bit levels.
+first's: mean, 99th percentile and largest absolute difference in 8-bit levels. A precision with
+``+compile`` (``fp32+compile``, ``bf16+compile``) is the same with ``sim2real translate
+--compile``; its ``warmup_seconds`` (the first pass, which compiles) against the others' says
+how many frames the compiling costs.
 ``--run RUN --scene SCENE`` times a trained run at its own size (for example the demo's
 ``demo/run`` with ``demo/scenes/sim_0``) instead of untrained presets at 256x512: the frame
 differences of a trained model are the ones that matter.
 
 Usage: python benchmarks/bench_translate.py [--presets small,paper | --run RUN --scene SCENE]
-       [--device cpu|cuda] [--precisions auto] [--frames 16] [--batch 8] [--repeats 3]
+       [--device cpu|cuda] [--precisions auto[,bf16+compile...]] [--frames 16] [--batch 8] [--repeats 3]
        [--end-to-end] [--workers N] [--pipeline]
 """
 
@@ -102,7 +105,7 @@ def main() -> None:
     ap.add_argument("--run", help="a trained run folder to time instead of the presets (needs --scene)")
     ap.add_argument("--scene", help="a scene folder of --run")
     ap.add_argument("--device", default="cpu")
-    ap.add_argument("--precisions", default="auto", help="comma-separated: auto, fp32, bf16")
+    ap.add_argument("--precisions", default="auto", help="comma-separated: auto, fp32, bf16, each optionally +compile")
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3)
@@ -134,7 +137,8 @@ def main() -> None:
 
         results = {}
         for name, run in runs.items():
-            models = {p: load_run(run, device=args.device, precision=p) for p in precisions}
+            models = {p: load_run(run, device=args.device, precision=p.removesuffix("+compile"),
+                                  compile=p.endswith("+compile")) for p in precisions}
             first = models[precisions[0]]
             h, w = first.train_size if args.run else (256, 512)
             traj = make_trajectory(caster, args.frames, h, w, first.cfg.data.fov_x_deg, seed=0)
@@ -144,13 +148,15 @@ def main() -> None:
                    "precisions": {p: {"amp_bf16": m.amp} for p, m in models.items()}}
             if args.repeats > 0:  # --repeats 0: no model timing (e.g. for --pipeline alone)
                 times = {p: [] for p in precisions}
-                frames = {p: _timed(m, scene.name, gbuffers, args.batch)[1] for p, m in models.items()}  # warm-up
+                warm = {p: _timed(m, scene.name, gbuffers, args.batch) for p, m in models.items()}
+                frames = {p: w[1] for p, w in warm.items()}
                 for _ in range(args.repeats):  # alternating, so that a slow spell of the machine hits each alike
                     for p, m in models.items():
                         times[p].append(_timed(m, scene.name, gbuffers, args.batch)[0])
                 for p in precisions:
                     r = res["precisions"][p]
-                    r.update(model_fps=args.frames / statistics.median(times[p]), model_seconds=times[p])
+                    r.update(model_fps=args.frames / statistics.median(times[p]), model_seconds=times[p],
+                             warmup_seconds=warm[p][0])
                     if p != precisions[0]:
                         r[f"levels_vs_{precisions[0]}"] = _levels(frames[p], frames[precisions[0]])
             for p, model in models.items():

@@ -12,7 +12,8 @@
 #                                           short paper-preset training run (it/s, data-wait share from
 #                                           metrics.jsonl, peak GPU memory), the training step and its
 #                                           peak memory (bench_train), translation frames/s, the data
-#                                           path per stage, and a 20-step DDP run when there are >1
+#                                           path per stage, translation with --compile (while time
+#                                           is left), and a 20-step DDP run when there are >1
 #                                           GPUs; CONV_SHARE=1 adds the conv share of the bf16 peak
 #   bash benchmarks/gpu_checks.sh demo      there (carry .whl): `sim2real demo` on the paper preset,
 #                                           DEMO_MINUTES (4) of training, then the learning statistics
@@ -71,10 +72,12 @@ stage() {  # stage NAME SECONDS COMMAND...: stdout to NAME.json (JSON) or NAME.o
 if [ "$MODE" = smoke ]; then
     PRESET=tiny; TRAIN_ITERS=tiny=5; RUN_ITERS=6; LOG_EVERY=3; CONV=(--preset tiny --steps 2 --warmup 1); DEMO=(--preset tiny --scenes 1
         --real-images 8 --frames 6 --eval-views 4 --seg-iterations 5); DEMO_MINUTES=${DEMO_MINUTES:-0.1}
-    TRANSLATE=(--presets small --frames 4 --batch 2 --repeats 1 --precisions auto,bf16); DATA=(--preset small --samples 3 --device "$DEV")
+    TRANSLATE=(--presets small --frames 4 --batch 2 --repeats 1 --precisions auto,bf16)
+    COMPILED=(--presets small --frames 4 --batch 2 --repeats 1 --precisions auto,auto+compile); DATA=(--preset small --samples 3 --device "$DEV")
 else
     PRESET=paper; TRAIN_ITERS=paper=20; RUN_ITERS=200; LOG_EVERY=50; CONV=(--preset paper); DEMO=(); DEMO_MINUTES=${DEMO_MINUTES:-4}
     TRANSLATE=(--presets paper --frames 64 --batch 16 --repeats 3 --end-to-end --precisions auto,fp32)
+    COMPILED=(--presets paper --frames 64 --batch 16 --repeats 3 --end-to-end --precisions auto,auto+compile)
     DATA=(--samples 20 --device "$DEV")
 fi
 
@@ -110,6 +113,9 @@ print(json.dumps({'train_run': [{k: r[k] for k in ('step', 'time/iterations_per_
     [ -n "${CONV_SHARE:-}" ] && stage bench_conv_share 120 "$PY" benchmarks/bench_conv_share.py --device "$DEV" "${CONV[@]}"
     stage bench_translate 120 "$PY" benchmarks/bench_translate.py --device "$DEV" "${TRANSLATE[@]}"
     stage bench_data 60 "$PY" benchmarks/bench_data.py "${DATA[@]}"
+    # translate --compile (its first pass compiles: warmup_seconds), while the 10 minutes allow it
+    [ "$SECONDS" -lt 450 ] && stage bench_translate_compiled 120 "$PY" benchmarks/bench_translate.py --device "$DEV" \
+        "${COMPILED[@]}"
     NGPU=$("$PY" -c "import torch; print(torch.cuda.device_count())" 2>/dev/null || echo 0)
     if [ "${NGPU:-0}" -gt 1 ]; then
         stage ddp_run 90 "$PY" -m torch.distributed.run --standalone --nproc-per-node "$NGPU" -m sim2real.cli.main \

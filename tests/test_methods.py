@@ -135,7 +135,15 @@ def test_inference_equals_the_training_forward_pass(name, request, tmp_path, pro
         b_hat = trainer.method.translate(trainer.gen, batch, 0)["b_hat"]
     want = ((b_hat.clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
     model = load_run(tmp_path / "run", "cpu")
+    # the networks that --compile compiles are the ones translation runs, each as a whole module
+    nets = model.method.inference_networks(model.gen)
+    assert nets and all(any(n is m for m in model.gen.modules()) for n in nets)
+    calls = [0] * len(nets)
+    hooks = [n.register_forward_hook(lambda *a, k=k: calls.__setitem__(k, calls[k] + 1)) for k, n in enumerate(nets)]
     got = np.stack(model.translate_gbuffers(model.scenes[0], gbuffers, batch=2))
+    for h in hooks:
+        h.remove()
+    assert all(c >= 1 for c in calls), calls
     # oneDNN may pick other kernels in eval/inference mode: at most one 8-bit level, on few pixels
     diff = np.abs(got.astype(int) - want.astype(int))
     assert diff.max() <= 1 and (diff > 0).mean() < 1e-3, (diff.max(), (diff > 0).mean())

@@ -153,7 +153,7 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:
 
 
 def cache_root() -> Path:
-    """The folder of sim2real's caches (trained segmenters, view pools): ``$SIM2REAL_CACHE``, by
+    """The folder of sim2real's caches (trained segmenters, view pools, compiled networks): ``$SIM2REAL_CACHE``, by
     default ``~/.cache/sim2real``."""
     return Path(os.environ.get("SIM2REAL_CACHE") or Path.home() / ".cache" / "sim2real")
 

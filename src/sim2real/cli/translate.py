@@ -1,7 +1,7 @@
 """``sim2real translate``: render a camera trajectory (or a views folder) through a trained run.
 
     sim2real translate RUN --scene SCENE --trajectory FILE --out DIR [--batch B] [--device auto|cpu|cuda]
-                       [--precision auto|fp32|bf16] [--checkpoint PATH] [--fps F] [--workers N]
+                       [--precision auto|fp32|bf16] [--compile] [--checkpoint PATH] [--fps F] [--workers N]
     sim2real translate RUN --views VIEWS_DIR --out DIR [...]
 
 Writes DIR/frames/000000.png ..., DIR/video.mp4, DIR/ground_truth/ and DIR/translate.json
@@ -26,6 +26,9 @@ def register(sub) -> None:
     p.add_argument("--batch", type=positive_int, default=8, help="frames per network call (default 8)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     add_precision_arg(p)
+    p.add_argument("--compile", action="store_true",
+                   help="compile the networks (TorchInductor; needs a C++ compiler on the CPU): the first frames wait "
+                        "for the compiler (about a minute on a CPU), the rest run faster; for long trajectories")
     p.add_argument("--checkpoint", metavar="PATH", help="checkpoint file instead of RUN/checkpoints/last.pt")
     p.add_argument("--fps", type=positive_float, help="video frame rate (default: the trajectory's, else 5)")
     p.add_argument("--workers", type=positive_int,
@@ -42,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("give either --views VIEWS_DIR or --scene SCENE --trajectory FILE, not both")
     if not args.views and not (args.scene and args.trajectory):
         raise UserError("give --scene SCENE and --trajectory FILE (or --views VIEWS_DIR)")
-    model = load_run(args.run, args.device, args.checkpoint, args.precision)
+    model = load_run(args.run, args.device, args.checkpoint, args.precision, compile=args.compile)
     source = views_source(model, args.views) if args.views else trajectory_source(model, args.scene, args.trajectory)
     m = translate_sequence(model, source, args.out, batch=args.batch, fps=args.fps, workers=args.workers,
                            progress=not args.no_progress)

@@ -47,6 +47,7 @@ from sim2real.engine.checkpoint import LAST, load_checkpoint
 from sim2real.engine.trainer import resolve_device
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, deferred_fsync, fsync_files, prepare_output_dir
+from sim2real.inference.compiled import compile_networks
 from sim2real.inference.export import GroundTruthWriter
 from sim2real.inference.frames import chunked, iter_gbuffers, iter_view_files
 from sim2real.inference.realimages import to_nchw
@@ -96,13 +97,15 @@ class TrainedModel:
     """The generator side of a trained run, ready for inference (see the module docstring)."""
 
     def __init__(self, cfg, method, gen, device: torch.device, scenes: list[SceneInfo], checkpoint: Path, step: int,
-                 amp: bool):
+                 amp: bool, compiled: bool = False):
         self.cfg = cfg
         self.method = method
         self.gen = gen
         self.device = device
         self.amp = amp
         """Whether the networks run under bf16 autocast (:func:`sim2real.engine.precision.inference_bf16`)."""
+        self.compiled = compiled
+        """Whether the method's inference networks are compiled (:mod:`sim2real.inference.compiled`)."""
         self.infos = {s.name: s for s in scenes}
         self.checkpoint = checkpoint
         self.step = step
@@ -265,13 +268,16 @@ def find_checkpoint(run_dir: str | os.PathLike, checkpoint: str | os.PathLike | 
 
 
 def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
-             checkpoint: str | os.PathLike | None = None, precision: str = "auto") -> TrainedModel:
+             checkpoint: str | os.PathLike | None = None, precision: str = "auto",
+             compile: bool = False) -> TrainedModel:
     """Restore the translator and the neural textures of a run for inference.
 
     ``device``: 'auto' (CUDA when available), 'cpu', 'cuda' or a torch.device. The configuration,
     method and scene list come from the checkpoint itself; the scene folders are not needed
     (the textures hold their objects' bounding boxes). ``precision``: 'auto', 'fp32' or
-    'bf16' (:func:`sim2real.engine.precision.inference_bf16`).
+    'bf16' (:func:`sim2real.engine.precision.inference_bf16`). ``compile``: compile the method's
+    inference networks with TorchInductor (:mod:`sim2real.inference.compiled`): the first network
+    call is slow, the later ones faster.
     """
     if precision not in numerics.INFERENCE_PRECISIONS:
         raise UserError(f"precision must be one of {', '.join(numerics.INFERENCE_PRECISIONS)}, got '{precision}'")
@@ -307,7 +313,9 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
     gen.eval()
     gen.requires_grad_(False)
     amp = numerics.inference_bf16(dev, precision, cfg.amp)
-    return TrainedModel(cfg, method, gen, dev, infos, path, int(state.get("step", 0)), amp)
+    if compile:
+        compile_networks(method.inference_networks(gen), dev)
+    return TrainedModel(cfg, method, gen, dev, infos, path, int(state.get("step", 0)), amp, compile)
 
 
 # --- the command -----------------------------------------------------------------------------------
@@ -418,8 +426,12 @@ def _translate_into(model: TrainedModel, source: TranslateSource, out: Path, bat
     with tqdm(total=n, desc="translate", unit="frame", disable=not progress) as bar, \
             GroundTruthWriter(out / "ground_truth", fps, [f"../frames/{k:06d}.png" for k in range(n)]) as gt:
         with BackgroundFrameWriter(frames_dir, out / "video.mp4", fps, depth=2 * batch) as writer:
+            if model.compiled:  # the first chunk compiles the networks: say why the bar waits
+                bar.set_description("translate (compiling the networks)")
             for chunk in chunked(gbuffers, batch):
-                for f in seq.translate(chunk):
+                frames = seq.translate(chunk)
+                bar.set_description("translate")
+                for f in frames:
                     if not size:
                         size.append(f.shape[:2])
                     elif f.shape[:2] != size[0]:
@@ -448,6 +460,7 @@ def _translate_into(model: TrainedModel, source: TranslateSource, out: Path, bat
         "width": w,
         "device": str(model.device),
         "amp_bf16": model.amp,
+        "compiled": model.compiled,
         "files": {"frames": "frames/%06d.png", "video": "video.mp4", "ground_truth": "ground_truth/"},
         "seconds": {"translate": round(translate_s, 3), "total": round(time.perf_counter() - t0, 3)},
     }

@@ -213,6 +213,12 @@ class Method(ABC):
         """Domain A -> B for the frames of ``batch`` on their own: (B, 3, H, W) in [-1, 1]. Equals
         the training forward pass's translation of view i for the same input and weights."""
 
+    def inference_networks(self, gen: Stage) -> list[nn.Module]:
+        """The networks that carry the cost of :meth:`translate_frames`, each as the module whose
+        ``forward`` it calls (``sim2real translate --compile`` compiles these in place). Default:
+        none listed, so such a method cannot be compiled."""
+        return []
+
     def translate_views(self, gen: Stage, batch: Batch, real: torch.Tensor | None = None,
                         generator: torch.Generator | None = None) -> list[tuple[str, torch.Tensor]]:
         """The translations of the views of ``batch`` that a realism evaluation scores, each

@@ -259,6 +259,9 @@ class Ours(Method):
             objects.append(n_obj)
         return self._stage(keys, textures), objects
 
+    def inference_networks(self, gen: GenStage) -> list[nn.Module]:
+        return [gen.translator.enc_a, gen.translator.dec_b]
+
     def translate_frames(self, gen: GenStage, batch: Batch) -> torch.Tensor:
         t = gen.translator
         x_a = self.x_a(gen, batch, "i")

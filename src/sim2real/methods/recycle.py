@@ -263,6 +263,9 @@ class Recycle(Method):
     def inference_stage(self, state: dict, where) -> tuple[RecycleGen, list[int | None]]:
         return self._stage(), [None] * len(state["scenes"])
 
+    def inference_networks(self, gen: RecycleGen) -> list[nn.Module]:
+        return [gen.g_ab]
+
     def translate_frames(self, gen: RecycleGen, batch: Batch) -> torch.Tensor:
         return pad_apply(lambda x: gen.g_ab(x.contiguous(memory_format=self.memory_format)), batch["a_ref_i"],
                          2**self.cfg.generator.downsamplings)

@@ -56,6 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torch import nn
 
 from sim2real.config import MethodConfig
 from sim2real.losses import l1, ms_ssim_loss, structure_ab_loss
@@ -272,6 +273,9 @@ class SsimMunit(Method):
         x = self._noisy(x_a, noise)
         return pad_apply(lambda t: gen.gen_b.decode(gen.gen_a.enc_content(t.contiguous(memory_format=mf)), style), x,
                          2**self.cfg.generator.downsamplings)
+
+    def inference_networks(self, gen: MunitGen) -> list[nn.Module]:
+        return [gen.gen_a.enc_content, gen.gen_b.dec]  # E^c_A and G_B's decoder (_a_to_b)
 
     def translate_frames(self, gen: MunitGen, batch: Batch) -> torch.Tensor:
         """b_hat of the training forward pass, with the batch's ``style_b`` and ``noise_a`` (fresh
