@@ -27,7 +27,8 @@ from torch import nn
 
 from sim2real.losses import l1, lsgan_dis_loss, lsgan_gen_loss, ms_ssim_loss, view_consistency, warp_backward
 from sim2real.models.layers import UpConv2dBlock
-from sim2real.models.translator import build_models
+from sim2real.models.discriminator import MsImageDis
+from sim2real.models.translator import Translator
 from sim2real.render.reference import class_albedo
 from sim2real.texture.neural_texture import NeuralTexture
 
@@ -82,7 +83,9 @@ class AuthorsStyleTrainer:
     def __init__(self, cfg, sources, device="cpu"):
         torch.manual_seed(cfg.seed)
         self.cfg = cfg
-        self.tr, self.dis_a, self.dis_b = (m.to(device) for m in build_models(cfg))
+        n = cfg.method.texture.features  # the networks as the 'ours' method builds them
+        self.tr = Translator(n, cfg.generator).to(device)
+        self.dis_a, self.dis_b = MsImageDis(n + 3, cfg.discriminator).to(device), MsImageDis(3, cfg.discriminator).to(device)
         for m in self.tr.modules():
             if isinstance(m, UpConv2dBlock):
                 m.subpixel = False  # upsample, then convolve

@@ -66,6 +66,7 @@ def test_every_method_and_metric_in_the_table(everything):
     assert "| ours ×2 |" in md and "C2ST AUC" in md and "| *real held out* |" in md
     page = (everything / "report.html").read_text()
     assert page.count("<svg") >= 8 and "data:image/png;base64," in page
+    assert "<title>sim2real benchmark</title>" in page
     assert (everything / "side_by_side.png").is_file()
 
 

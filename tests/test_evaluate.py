@@ -70,6 +70,7 @@ def check_report(out):
     md, page = (out / "report.md").read_text(), (out / "report.html").read_text()
     assert "ORB-1" in md and "FID" in md and "plots/orb_accuracy.svg" in md
     assert page.count("<svg") == 3 and "data:image/png;base64," in page
+    assert "<title>sim2real evaluation</title>" in page
     assert "Between floor and ceiling" in page and "overlap 10" in page
     for rel in ("plots/orb_accuracy.svg", "plots/orb_correct.svg", "plots/of_error.svg", "samples/views.png",
                 f"videos/procedural_{SCENE_SEED:04d}.mp4"):

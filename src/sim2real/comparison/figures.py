@@ -17,7 +17,7 @@ from sim2real.fileio import atomic_write_image, atomic_write_text
 from sim2real.grid import tile
 from sim2real.inference.anchors import Anchors, stand_in_options
 from sim2real.inference.frames import iter_gbuffers
-from sim2real.inference.report import _html
+from sim2real.inference.report import blocks_html
 from sim2real.inference.svg import COLOURS, fmt_tick, nice_ticks
 from sim2real.inference.translate import load_run
 from sim2real.render.reference import reference_rendering, to_uint8
@@ -128,4 +128,4 @@ def write_report(table: dict, out: Path, figure: dict) -> None:
     for blk in blocks:
         if blk[0] == "plot":
             atomic_write_text(out / blk[1], blk[2] + "\n")
-    atomic_write_text(out / "report.html", _html(blocks, out).replace("sim2real evaluation", "sim2real benchmark"))
+    atomic_write_text(out / "report.html", blocks_html(blocks, out, "sim2real benchmark"))

@@ -323,7 +323,8 @@ def _inline_md(text: str) -> str:
     return "".join(f"<b>{p}</b>" if i % 2 else p for i, p in enumerate(parts))
 
 
-def _html(blocks: list[tuple], out: Path) -> str:
+def blocks_html(blocks: list[tuple], out: Path, title: str = "sim2real evaluation") -> str:
+    """A self-contained HTML page of report ``blocks`` (images of ``out`` inlined)."""
     body: list[str] = []
     for blk in blocks:
         kind = blk[0]
@@ -347,7 +348,8 @@ def _html(blocks: list[tuple], out: Path) -> str:
              "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;text-align:left}"
              "th{background:#f3f3f3}figure{margin:1em 0}img{max-width:100%;image-rendering:pixelated}"
              "pre{background:#f6f6f6;padding:1em;overflow:auto}")
-    return ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>sim2real evaluation</title>"
+    return ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">"
+            f"<title>{html.escape(title)}</title>"
             f"<style>{style}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
 
 
@@ -359,4 +361,4 @@ def write_report(metrics: dict, out: str | Path, samples: dict[str, str]) -> Non
         if blk[0] == "plot":
             atomic_write_text(out / blk[1], blk[2] + "\n")
     atomic_write_text(out / "report.md", _md(blocks))
-    atomic_write_text(out / "report.html", _html(blocks, out))
+    atomic_write_text(out / "report.html", blocks_html(blocks, out))
