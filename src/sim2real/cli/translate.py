@@ -28,7 +28,8 @@ def register(sub) -> None:
     add_precision_arg(p)
     p.add_argument("--compile", action="store_true",
                    help="compile the networks (TorchInductor; needs a C++ compiler on the CPU): the first frames wait "
-                        "for the compiler (about a minute on a CPU), the rest run faster; for long trajectories")
+                        "for the compiler (15-20 s on a 2-core CPU, a few once cached), the rest run faster; "
+                        "for long trajectories")
     p.add_argument("--checkpoint", metavar="PATH", help="checkpoint file instead of RUN/checkpoints/last.pt")
     p.add_argument("--fps", type=positive_float, help="video frame rate (default: the trajectory's, else 5)")
     p.add_argument("--workers", type=positive_int,
