@@ -127,7 +127,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench_conv_") as tmp:
         base = Path(tmp)
         scene, real = _inputs(base)
-        cfg = override(get_preset(args.preset), ["method.vc_start=0", f"device={args.device}", "data.workers=0"])
+        cfg = override(get_preset(args.preset), ["method.vc_start=0", f"device={args.device}", "data.workers=0",
+                                                 "data.view_pool=0"])  # batches made here: no pool to ray-cast
         trainer = Trainer(cfg, [scene], real, base / "run", progress=False)
         device = trainer.device
         ds = TrainPairs(resolve_scenes([scene], cfg.data.height, cfg.data.width), RealImages(real), cfg.data, seed=0)

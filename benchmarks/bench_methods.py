@@ -74,7 +74,8 @@ def measure(preset: str, method: str, iters: int, device: str, base: Path, frame
     from sim2real.scene.trajectory import make_trajectory
 
     cfg = get_preset(preset, method)
-    sets = [f"device={device}", "data.workers=0", "checkpoint_every=1000000", "image_every=1000000"]
+    # data.view_pool=0: a handful of batches is drawn, so a pool (3,000 views ray-cast) would only cost time
+    sets = [f"device={device}", "data.workers=0", "data.view_pool=0", "checkpoint_every=1000000", "image_every=1000000"]
     if hasattr(cfg.method, "vc_start"):
         sets.append("method.vc_start=0")
     cfg = override(cfg, sets)

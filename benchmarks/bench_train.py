@@ -104,7 +104,8 @@ def child(preset: str, impls: list[str], iters: int, base: Path, device_name: st
     from sim2real.presets import preset as get_preset
 
     scene, real = _inputs(base)
-    cfg = override(get_preset(preset), ["method.vc_start=0", f"device={device_name}", "data.workers=0"])
+    # data.view_pool=0: the batches are made here, so a pool (3,000 views ray-cast) would only cost time
+    cfg = override(get_preset(preset), ["method.vc_start=0", f"device={device_name}", "data.workers=0", "data.view_pool=0"])
     sources = resolve_scenes([scene], cfg.data.height, cfg.data.width)
     ds = TrainPairs(sources, RealImages(real), cfg.data, seed=0)
     n = WARMUP[preset] + iters

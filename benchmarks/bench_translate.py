@@ -62,7 +62,8 @@ def make_run(preset: str, scene_dir: Path, real_dir: Path, out: Path, device: st
     from sim2real.engine.trainer import Trainer
     from sim2real.presets import preset as get_preset
 
-    cfg = override(get_preset(preset), [f"device={device}", "data.height=256", "data.width=512"])
+    # data.view_pool=0: only the step-0 checkpoint is needed, not the preset's pool of 3,000 ray-cast views
+    cfg = override(get_preset(preset), [f"device={device}", "data.height=256", "data.width=512", "data.view_pool=0"])
     trainer = Trainer(cfg, scenes=[str(scene_dir)], real=str(real_dir), out=out, progress=False)
     try:
         trainer.save_checkpoint()
