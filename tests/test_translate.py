@@ -221,17 +221,43 @@ def test_compiled_translation_equals_eager(inputs, tmp_path, capsys):
     assert np.array_equal(frames[True][4], frames[True][1])  # still time-independent (padded batches)
 
 
-def test_compile_without_a_compiler_is_one_line(inputs, tmp_path, capsys, monkeypatch):
-    import torch._dynamo
-    import torch._inductor.config as inductor
+def test_compile_without_a_compiler_is_one_line(inputs, tmp_path):
+    """A machine without a C++ compiler (CXX names none): one line, a non-zero exit, no output.
+    In a fresh process, so that inductor's memory of the missing compiler stays there."""
+    import os
+    import subprocess
+    import sys
 
-    torch._dynamo.reset()
-    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path / "inductor"))  # nothing compiled before
-    monkeypatch.setattr(inductor.cpp, "cxx", (None, str(tmp_path / "no-such-c++")))
-    code, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
-                    "--out", tmp_path / "out", "--device", "cpu", "--no-progress", "--compile")
-    assert code != 0
-    line = one_line(err)
+    env = {**os.environ, "CXX": str(tmp_path / "no-such-c++"), "TORCHINDUCTOR_CACHE_DIR": str(tmp_path / "inductor"),
+           "SIM2REAL_CACHE": str(tmp_path / "cache")}
+    r = subprocess.run([sys.executable, "-m", "sim2real.cli.main", "translate", str(inputs["run"]), "--scene",
+                        str(inputs["scene"]), "--trajectory", str(inputs["traj"]), "--out", str(tmp_path / "out"),
+                        "--device", "cpu", "--no-progress", "--compile"], capture_output=True, text=True, env=env,
+                       timeout=300)
+    assert r.returncode != 0
+    line = one_line(r.stderr)
     assert "--compile: TorchInductor cannot compile for cpu" in line and "run without --compile" in line, line
     assert not (tmp_path / "out").exists()
+
+
+def test_compiled_cuda_numerics_on_cpu(inputs, monkeypatch):
+    """--compile under the CUDA path's numerics (bf16 autocast, channels-last images and weights),
+    run on the CPU: frames within bf16 rounding of the uncompiled ones of the same path, and still
+    independent of what shares their batch."""
+    import torch._dynamo
+
+    from sim2real.engine import precision
+
+    torch._dynamo.reset()
+    monkeypatch.setattr(precision, "mixed_precision", lambda device: True)
+    name = f"procedural_{SCENE_SEED:04d}"
+    g = [inputs["caster"].render(c) for c in inputs["cams"][:3]]
+    eager = load_run(inputs["run"], "cpu").translate_gbuffers(name, g, batch=2)
+    model = load_run(inputs["run"], "cpu", compile=True)
+    assert model.compiled and model.amp and model.method.memory_format == torch.channels_last
+    got = model.translate_gbuffers(name, g, batch=2)
+    for a, b in zip(got, eager):
+        d = np.abs(a.astype(int) - b.astype(int))
+        assert d.mean() < 3.0 and d.max() <= 32, (d.mean(), d.max())
+    assert np.array_equal(model.translate_gbuffers(name, [g[2], g[0]], batch=2)[0], got[2])
     torch._dynamo.reset()

@@ -19,6 +19,8 @@ compiles a one-line function on the device and turns a failure into one clear er
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 
 import torch
@@ -32,11 +34,25 @@ def _probe(x: torch.Tensor) -> torch.Tensor:
     return torch.relu(x * 2.0 - 1.0)
 
 
+@contextlib.contextmanager
+def _quiet_cuda_home(device: torch.device):
+    """On the CPU, silence torch's warning that a CUDA toolkit was found without a CUDA runtime
+    (printed once, when the compiler stack first loads): it says nothing about a CPU compile."""
+    log = logging.getLogger("torch.utils.cpp_extension")
+    level = log.level
+    if device.type == "cpu":
+        log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
 def check_compiler(device: torch.device) -> None:
     """Raise a one-line :class:`UserError` when TorchInductor cannot compile for ``device``
     (no C++ compiler for the CPU, no Triton for CUDA, ...)."""
     try:
-        with torch.inference_mode():
+        with torch.inference_mode(), _quiet_cuda_home(device):
             torch.compile(_probe)(torch.zeros(4, device=device))
     except Exception as e:  # noqa: BLE001 - whatever the compiler stack raises becomes one line
         lines = [s.strip() for s in str(e).strip().splitlines() if s.strip()]
