@@ -20,8 +20,11 @@ compiles a one-line function on the device and turns a failure into one clear er
 from __future__ import annotations
 
 import contextlib
+import importlib
+import io
 import logging
 import os
+import sys
 
 import torch
 from torch import nn
@@ -34,16 +37,18 @@ def _probe(x: torch.Tensor) -> torch.Tensor:
     return torch.relu(x * 2.0 - 1.0)
 
 
-@contextlib.contextmanager
-def _quiet_cuda_home(device: torch.device):
-    """On the CPU, silence torch's warning that a CUDA toolkit was found without a CUDA runtime
-    (printed once, when the compiler stack first loads): it says nothing about a CPU compile."""
+def _load_compiler_stack_quietly() -> None:
+    """Import torch's C++ extension module without its one message that a CUDA toolkit
+    (CUDA_HOME) was found but no CUDA runtime: it says nothing about a compile for the CPU. It is
+    printed as the module loads, by a logger in newer torch releases and by print in older ones."""
+    if "torch.utils.cpp_extension" in sys.modules:
+        return
     log = logging.getLogger("torch.utils.cpp_extension")
     level = log.level
-    if device.type == "cpu":
-        log.setLevel(logging.ERROR)
+    log.setLevel(logging.ERROR)
     try:
-        yield
+        with contextlib.redirect_stderr(io.StringIO()):
+            importlib.import_module("torch.utils.cpp_extension")
     finally:
         log.setLevel(level)
 
@@ -52,7 +57,8 @@ def check_compiler(device: torch.device) -> None:
     """Raise a one-line :class:`UserError` when TorchInductor cannot compile for ``device``
     (no C++ compiler for the CPU, no Triton for CUDA, ...)."""
     try:
-        with torch.inference_mode(), _quiet_cuda_home(device):
+        _load_compiler_stack_quietly()
+        with torch.inference_mode():
             torch.compile(_probe)(torch.zeros(4, device=device))
     except Exception as e:  # noqa: BLE001 - whatever the compiler stack raises becomes one line
         lines = [s.strip() for s in str(e).strip().splitlines() if s.strip()]
