@@ -18,7 +18,7 @@ from sim2real.grid import tile
 from sim2real.inference.anchors import Anchors, stand_in_options
 from sim2real.inference.frames import iter_gbuffers
 from sim2real.inference.report import blocks_html
-from sim2real.inference.svg import COLOURS, fmt_tick, nice_ticks
+from sim2real.inference.svg import COLOURS, fmt_tick, legend_row, nice_ticks
 from sim2real.inference.translate import load_run
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.scene.scene import Scene
@@ -67,9 +67,7 @@ def svg_bar_chart(values: dict[str, float | None], title: str, refs: dict[str, f
     for j, (name, v) in enumerate(refs.items()):
         c = "#2ca02c" if name == "ceiling" else "#d62728"
         out.append(f'<line x1="{X(v):.1f}" y1="{mt}" x2="{X(v):.1f}" y2="{y_axis}" stroke="{c}" stroke-dasharray="4 3"/>')
-        ly = y_axis + 30 + 16 * j
-        out.append(f'<line x1="{ml}" y1="{ly - 4}" x2="{ml + 20}" y2="{ly - 4}" stroke="{c}" stroke-dasharray="4 3"/>')
-        out.append(f'<text x="{ml + 26}" y="{ly}">{html.escape(name)} {fmt_tick(v)}</text>')
+        out.extend(legend_row(ml, y_axis + 26 + 16 * j, c, f"{name} {fmt_tick(v)}", 'stroke-dasharray="4 3"'))
     out.append("</svg>")
     return "\n".join(out)
 

@@ -33,6 +33,14 @@ def fmt_tick(v: float) -> str:
     return f"{v:g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.1e}"
 
 
+def legend_row(x: float, y: float, colour: str, label: str, stroke: str = "") -> list[str]:
+    """One legend entry at (x, y): a 20-px line in ``colour`` (extra ``stroke`` attributes) and
+    ``label`` beside it."""
+    extra = f" {stroke}" if stroke else ""
+    return [f'<line x1="{x}" y1="{y}" x2="{x + 20}" y2="{y}" stroke="{colour}"{extra}/>',
+            f'<text x="{x + 26}" y="{y + 4}">{html.escape(label)}</text>']
+
+
 def svg_line_plot(series: dict[str, Sequence[tuple[float, float | None]]], title: str, xlabel: str, ylabel: str,
                   width: int = 560, height: int = 320, y_min: float | None = None, y_max: float | None = None,
                   y_percent: bool = False) -> str:
@@ -96,8 +104,6 @@ def svg_line_plot(series: dict[str, Sequence[tuple[float, float | None]]], title
                 out.append(f'<polyline points="{d}" fill="none" stroke="{c}" stroke-width="1.8"/>')
             for a, b in r:
                 out.append(f'<circle cx="{a:.1f}" cy="{b:.1f}" r="2.4" fill="{c}"/>')
-        ly = height + 4 + 16 * k
-        out.append(f'<line x1="{ml}" y1="{ly}" x2="{ml + 20}" y2="{ly}" stroke="{c}" stroke-width="2"/>')
-        out.append(f'<text x="{ml + 26}" y="{ly + 4}">{html.escape(name)}</text>')
+        out.extend(legend_row(ml, height + 4 + 16 * k, c, name, 'stroke-width="2"'))
     out.append("</svg>")
     return "\n".join(out)
