@@ -5,13 +5,19 @@ device, and the first operation mixing it with the run's CPU tensors fails, or i
 missing when they are read: on a GPU such a tensor would sit on the wrong device."""
 
 import json
+import math
 
+import numpy as np
 import pytest
 import torch
 from eval_data import SCENE_SEED
-from train_data import real_dir, scene_dir
+from torch.utils.data import default_collate
+from train_data import real_dir, scene_dir, tiny_config
 
 from sim2real.cli.main import main
+from sim2real.engine.trainer import Trainer
+from sim2real.methods import get_method
+from sim2real.presets import METHOD_PRESETS
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import Trajectory, make_trajectory
@@ -82,3 +88,132 @@ def test_a_ref_rendered_from_the_sample_with_a_meta_default_device(procedural_ca
     batch = complete_on_device(widen(compact(view_inputs([g], "i", len(g.classes)))))
     assert batch["a_ref_i"].device.type == "cpu" and batch["a_ref_i"].shape == (1, 3, 32, 64)
     assert batch["a_ref_i"].abs().sum().item() > 0
+
+
+# --- a fake CUDA device: tensors made on the CPU on purpose (torch.from_numpy, device="cpu") -------
+# The meta default above catches a tensor made without a device; one made on the CPU explicitly
+# passes it, as the run's device is the CPU. Under torch's FakeTensorMode a model and batch can
+# live on a "cuda" device that has no memory and no GPU behind it: every operation checks that its
+# tensors share a device, as CUDA would, and computes only shapes. The backward pass cannot run
+# there (the autograd engine asks the CUDA driver for the device), nor can anything that reads
+# values (.item(), .numpy()), so these tests run the forward passes of a step and of a translation.
+# That makes them a check of host syncs too: a value read back from the device (on a GPU the
+# host waits for every queued kernel) fails with DataDependentOutputException.
+
+
+@pytest.fixture
+def fake_cuda():
+    """A FakeTensorMode whose "cuda" tensors need no GPU; real CPU tensors (a loader batch) may
+    enter it and are turned into fake ones. ``Module.to`` then assigns new parameters instead of
+    swapping them in place, which fake tensors do not allow."""
+    from torch._subclasses.fake_tensor import FakeTensorMode
+
+    overwrite = torch.__future__.get_overwrite_module_params_on_conversion()
+    torch.__future__.set_overwrite_module_params_on_conversion(True)
+    try:
+        yield FakeTensorMode(allow_non_fake_inputs=True)
+    finally:
+        torch.__future__.set_overwrite_module_params_on_conversion(overwrite)
+
+
+def test_the_fake_cuda_device_is_harmful(fake_cuda):
+    with fake_cuda:
+        conv = torch.nn.Conv2d(3, 4, 3, device="cuda")
+        y = conv(torch.zeros(1, 3, 8, 8, device="cuda"))
+        assert y.device.type == "cuda" and y.shape == (1, 4, 6, 6)
+        with pytest.raises(RuntimeError, match="same device"):
+            y * torch.ones(4, 1, 1)  # made without a device: the CPU
+        with pytest.raises(RuntimeError, match="same device"):
+            y * torch.from_numpy(np.ones((4, 1, 1), np.float32))
+
+
+def _cuda_step(cfg, scenes, real, out, fake_cuda, gbuffers):
+    """The forward passes of one training step (the trainer's own batch transfer and step, without
+    its backward and its host sync) and of a translation, with the model and batch on the fake
+    CUDA device; returns every loss term and translated image."""
+    trainer = Trainer(cfg, [scenes], real, out, progress=False)
+    try:
+        trainer.dataset.a_ref_in_worker = False  # as on CUDA: a_ref rendered from the sample on the device
+        batch = default_collate([trainer.dataset[0]])
+        cuda = torch.device("cuda")
+        trainer.device, trainer.channels_last = cuda, True
+        trainer.method.memory_format = torch.channels_last
+        trainer._update = lambda losses, weights, opts: sum(weights[k] * v for k, v in losses.items())
+        trainer._check_finite = lambda losses, totals, step: None
+        method = trainer.method
+        with fake_cuda:
+            trainer.gen.to(cuda)
+            trainer.dis.to(cuda)
+            results = dict(trainer.train_step(trainer._to_device(batch), 0))
+            seq = method.sequence(trainer.gen, 0, cuda)
+            for k in range(2):  # two chunks: a time-dependent method carries state from the first
+                results[f"push_{k}"] = seq.push(gbuffers[2 * k: 2 * k + 2])
+            views = method.inference_batch(gbuffers[:2], 0, cuda)
+            real_img = torch.zeros(1, 3, 40, 72, device=cuda)
+            for name, img in method.translate_views(trainer.gen, views, real_img, torch.Generator().manual_seed(0)):
+                results[f"views{name}"] = img
+    finally:
+        trainer.close()
+    return results
+
+
+@pytest.fixture(scope="module")
+def four_views(procedural_caster):
+    from sim2real.scene.trajectory import make_trajectory
+
+    cams = make_trajectory(procedural_caster, 4, 32, 64, seed=3).cameras
+    return [procedural_caster.render(c) for c in cams]
+
+
+@pytest.mark.parametrize("name,structure", [(n, "ms_ssim") for n in sorted(METHOD_PRESETS)] + [("ours", "edges")])
+def test_a_step_and_a_translation_on_a_fake_cuda_device(name, structure, request, tmp_path, fake_cuda, four_views):
+    cfg = tiny_config(name, data__view_pool=0, data__workers=0, loss__ab_structure=structure)
+    if hasattr(cfg.method, "vc_start"):
+        cfg.method.vc_start = 0  # the view-consistency term in the step too
+    video = get_method(cfg).data == "triplets"
+    scenes, real = request.getfixturevalue("video_train_inputs" if video else "train_inputs")
+    results = _cuda_step(cfg, scenes, real, tmp_path / "run", fake_cuda, four_views)
+    assert {"dis/total", "gen/total", "push_0", "push_1"} <= results.keys()
+    assert any(k.startswith("views") for k in results)
+    for k, v in results.items():
+        assert v.device.type == "cuda", k
+    for k in ("push_0", "push_1"):
+        assert results[k].shape == (2, 3, 32, 64), k
+
+
+def test_a_cpu_tensor_in_the_step_fails_on_the_fake_cuda_device(train_inputs, tmp_path, fake_cuda, four_views,
+                                                                monkeypatch):
+    """The check catches what the meta default cannot: a_ref drawn with a weight made from numpy."""
+    import sim2real.data.tensors as tensors
+
+    real_reference = tensors.reference_on_device
+
+    def cpu_weighted(*args):
+        return real_reference(*args) * torch.from_numpy(np.ones((3, 1, 1), np.float32))
+
+    monkeypatch.setattr(tensors, "reference_on_device", cpu_weighted)
+    scenes, real = train_inputs
+    with pytest.raises(RuntimeError, match="same device"):
+        _cuda_step(tiny_config("ours", data__view_pool=0, data__workers=0), scenes, real, tmp_path / "run", fake_cuda,
+                   four_views)
+
+
+def test_a_host_sync_in_the_step_fails_on_the_fake_cuda_device(train_inputs, tmp_path, fake_cuda, four_views,
+                                                               monkeypatch):
+    """kornia's gaussian_blur2d inside a device context reads its sigma back from the device; the
+    edge-recall term's own blur does not (losses/structure.py). Put kornia's back and the step fails."""
+    import kornia
+    from torch._subclasses.fake_tensor import DataDependentOutputException
+
+    import sim2real.losses.structure as structure
+
+    def kornia_blur(x, sigma):
+        k = 2 * math.ceil(3 * sigma) + 1
+        with torch.device(x.device):
+            return kornia.filters.gaussian_blur2d(x, (k, k), (sigma, sigma))
+
+    monkeypatch.setattr(structure, "gaussian_blur", kornia_blur)
+    scenes, real = train_inputs
+    cfg = tiny_config("ours", data__view_pool=0, data__workers=0, loss__ab_structure="edges")
+    with pytest.raises(DataDependentOutputException):
+        _cuda_step(cfg, scenes, real, tmp_path / "run", fake_cuda, four_views)

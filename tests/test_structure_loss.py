@@ -91,6 +91,23 @@ def test_blurred_random_images_match_an_independent_scipy_computation():
         assert got == pytest.approx(want, abs=1e-5)
 
 
+@pytest.mark.parametrize("sigma", [0.6, 1.0, 2.3])
+def test_the_gaussian_blur_is_kornias_and_scipys(sigma):
+    """The blur made without kornia's host sync gives kornia's gaussian_blur2d values, and scipy's
+    Gaussian filter (mirror borders, radius int(3 sigma + 0.5), equal to ceil(3 sigma) here)."""
+    import kornia
+
+    from sim2real.losses.structure import gaussian_blur
+
+    g = torch.from_numpy(np.random.default_rng(5).uniform(0, 1, (2, 1, 24, 31)).astype(np.float32))
+    k = 2 * math.ceil(3 * sigma) + 1
+    got = gaussian_blur(g, sigma)
+    assert torch.allclose(got, kornia.filters.gaussian_blur2d(g, (k, k), (sigma, sigma)), atol=1e-6)
+    want = np.stack([ndimage.gaussian_filter(c[0].astype(np.float64), sigma, mode="mirror", truncate=3.0)
+                     for c in g.numpy()])
+    assert np.abs(got[:, 0].numpy() - want).max() < 1e-5
+
+
 def test_an_edgeless_a_gives_zero_and_the_gradient_reaches_the_missing_edge():
     flat = image(np.full((8, 16), 0.5, np.float32))
     assert edge_recall_loss(flat, image(step(8, h=8, w=16)), sigma=0).item() == 0.0

@@ -40,6 +40,17 @@ STRUCTURES = ("ms_ssim", "edges")
 """What ``loss.ab_structure`` may name."""
 
 
+def gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    """``kornia.filters.gaussian_blur2d(x, (k, k), (sigma, sigma))`` with k = 2 ceil(3 sigma) + 1
+    (reflected borders), the same values (tested) without a host sync: kornia checks that sigma is
+    positive by reading back a tensor it makes without a device, which inside a device context (on
+    a GPU) is a copy to the device and a read back on every call. Here the kernel is made from a
+    sigma on x's device."""
+    k = 2 * math.ceil(3 * sigma) + 1
+    kernel = kornia.filters.get_gaussian_kernel1d(k, torch.full((1, 1), float(sigma), device=x.device, dtype=x.dtype))
+    return kornia.filters.filter2d_separable(x, kernel, kernel, border_type="reflect")
+
+
 def edge_recall_loss(a: torch.Tensor, x: torch.Tensor, contrast: float = 0.02, sigma: float = 1.0,
                      power: float = 1.0) -> torch.Tensor:
     """Edge recall of ``x`` at the edges of ``a`` (module docstring), averaged over the batch;
@@ -51,12 +62,10 @@ def edge_recall_loss(a: torch.Tensor, x: torch.Tensor, contrast: float = 0.02, s
     if not contrast > 0 or not sigma >= 0 or not power > 0:
         raise ValueError(f"edge_recall_loss: needs contrast > 0, sigma >= 0 and power > 0, got {contrast}, {sigma}, "
                          f"{power}")
-    # kornia builds its kernels without a device: on the images' device from the start
-    with torch.autocast(a.device.type, enabled=False), torch.device(a.device):
+    with torch.autocast(a.device.type, enabled=False):
         ga, gx = grey(a.float()), grey(x.float())
         if sigma > 0:
-            k = 2 * math.ceil(3 * sigma) + 1
-            ga, gx = (kornia.filters.gaussian_blur2d(g, (k, k), (sigma, sigma)) for g in (ga, gx))
+            ga, gx = gaussian_blur(ga, sigma), gaussian_blur(gx, sigma)
         da = kornia.filters.spatial_gradient(ga)[:, 0]  # (B, 2, H, W): d/dx, d/dy
         dx = kornia.filters.spatial_gradient(gx)[:, 0]
         m2 = (da**2).sum(1)
