@@ -127,6 +127,11 @@ def test_the_fake_cuda_device_is_harmful(fake_cuda):
             y * torch.from_numpy(np.ones((4, 1, 1), np.float32))
 
 
+def _config(name: str, **changes):
+    """The tiny preset on the CPU (the fake device replaces it), without view pool or workers."""
+    return tiny_config(name, device="cpu", data__view_pool=0, data__workers=0, **changes)
+
+
 def _cuda_step(cfg, scenes, real, out, fake_cuda, gbuffers):
     """The forward passes of one training step (the trainer's own batch transfer and step, without
     its backward and its host sync) and of a translation, with the model and batch on the fake
@@ -167,7 +172,7 @@ def four_views(procedural_caster):
 
 @pytest.mark.parametrize("name,structure", [(n, "ms_ssim") for n in sorted(METHOD_PRESETS)] + [("ours", "edges")])
 def test_a_step_and_a_translation_on_a_fake_cuda_device(name, structure, request, tmp_path, fake_cuda, four_views):
-    cfg = tiny_config(name, data__view_pool=0, data__workers=0, loss__ab_structure=structure)
+    cfg = _config(name, loss__ab_structure=structure)
     if hasattr(cfg.method, "vc_start"):
         cfg.method.vc_start = 0  # the view-consistency term in the step too
     video = get_method(cfg).data == "triplets"
@@ -194,8 +199,7 @@ def test_a_cpu_tensor_in_the_step_fails_on_the_fake_cuda_device(train_inputs, tm
     monkeypatch.setattr(tensors, "reference_on_device", cpu_weighted)
     scenes, real = train_inputs
     with pytest.raises(RuntimeError, match="same device"):
-        _cuda_step(tiny_config("ours", data__view_pool=0, data__workers=0), scenes, real, tmp_path / "run", fake_cuda,
-                   four_views)
+        _cuda_step(_config("ours"), scenes, real, tmp_path / "run", fake_cuda, four_views)
 
 
 def test_a_host_sync_in_the_step_fails_on_the_fake_cuda_device(train_inputs, tmp_path, fake_cuda, four_views,
@@ -214,6 +218,6 @@ def test_a_host_sync_in_the_step_fails_on_the_fake_cuda_device(train_inputs, tmp
 
     monkeypatch.setattr(structure, "gaussian_blur", kornia_blur)
     scenes, real = train_inputs
-    cfg = tiny_config("ours", data__view_pool=0, data__workers=0, loss__ab_structure="edges")
+    cfg = _config("ours", loss__ab_structure="edges")
     with pytest.raises(DataDependentOutputException):
         _cuda_step(cfg, scenes, real, tmp_path / "run", fake_cuda, four_views)
