@@ -15,10 +15,10 @@ from sim2real.inference.anchors import Anchors
 from sim2real.inference.evaluate import EvalSettings
 from sim2real.inference.realimages import find_real
 from sim2real.inference.rows import ROWS
+from sim2real.inference.metrics_json import assemble_metrics
 from sim2real.inference.stages import (
     VIEW_INDEX0,
     ViewSet,
-    assemble_metrics,
     consistency_stage,
     realism_stage,
     report_stage,

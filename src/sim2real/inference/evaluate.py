@@ -49,8 +49,8 @@ from sim2real.fileio import prepare_output_dir
 from sim2real.inference.anchors import Anchors, stand_in_options
 from sim2real.inference.realimages import find_real, shared_classes
 from sim2real.inference.rows import ROWS
+from sim2real.inference.metrics_json import assemble_metrics
 from sim2real.inference.stages import (
-    assemble_metrics,
     consistency_stage,
     realism_stage,
     report_stage,
