@@ -67,6 +67,7 @@ from sim2real.data.real import RealImages, load_rgb, random_resized_crop
 from sim2real.data.tensors import compact, complete_on_device, view_inputs, widen
 from sim2real.data.viewpool import GBUFFERS, attach_view_pools, bytes_per_view, open_pool
 from sim2real.data.views import write_views_manifest
+from sim2real.engine.loader import make_loader
 from sim2real.presets import POOL_VIEWS, preset
 from sim2real.render.raycast import RayCaster
 from sim2real.render.reference import reference_rendering
@@ -74,7 +75,7 @@ from sim2real.render.warp import correspondences
 from sim2real.scene.procedural import generate_scene
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import sample_poses
-from sim2real.threads import single_thread_worker, usable_cores
+from sim2real.threads import usable_cores
 
 HOST_CORES = 16
 
@@ -218,8 +219,7 @@ def pooled(scene: Path, real: Path, cfg, n: int, views: int) -> dict:
 
 def loader_rate(path: Path, real: Path, cfg, workers: int, n: int) -> float:
     ds = TrainPairs(resolve_scenes([path], cfg.height, cfg.width), RealImages(real), cfg, seed=0)
-    loader = torch.utils.data.DataLoader(ds, batch_size=1, sampler=StepSampler(0, n + 1), num_workers=workers,
-                                         prefetch_factor=2, worker_init_fn=single_thread_worker)
+    _, loader = make_loader(ds, StepSampler(0, n + 1), workers, pin_memory=False, announce=True)  # the trainer's
     it = iter(loader)
     next(it)  # worker start-up is not throughput
     t = time.perf_counter()

@@ -401,15 +401,15 @@ def test_automatic_loader_workers(monkeypatch, cores, local_world, expected):
     """data.workers = -1: the node's usable cores split among its ranks, less one for training,
     at least 1 and no fixed cap (sim2real.threads.worker_count); an explicit count is kept."""
     from sim2real import threads
-    from sim2real.engine import trainer as trainer_module
+    from sim2real.engine import loader
 
     monkeypatch.setattr(threads, "usable_cores", lambda: cores)
     if local_world is None:
         monkeypatch.delenv("LOCAL_WORLD_SIZE", raising=False)
     else:
         monkeypatch.setenv("LOCAL_WORLD_SIZE", local_world)
-    assert trainer_module.loader_workers(-1) == expected
-    assert trainer_module.loader_workers(0) == 0 and trainer_module.loader_workers(5) == 5
+    assert loader.loader_workers(-1) == expected
+    assert loader.loader_workers(0) == 0 and loader.loader_workers(5) == 5
 
 
 def test_low_overlap_redraws_view_j_only(inputs, tmp_path_factory):

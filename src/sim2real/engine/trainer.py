@@ -40,8 +40,6 @@ from __future__ import annotations
 import math
 import os
 import random
-import re
-import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -52,17 +50,16 @@ import torch
 from sim2real.config import TrainConfig, save_yaml, to_dict
 from sim2real.data.datasets import StepSampler, make_dataset, resolve_scenes
 from sim2real.data.real import INDEX as REAL_INDEX, RealImages
-from sim2real.data.shm import loader_workers_for_shm
 from sim2real.data.tensors import complete_on_device, widen
 from sim2real.data.viewpool import attach_view_pools
 from sim2real.engine import checkpoint as ckpt, distributed, precision
+from sim2real.engine.loader import make_loader, worker_message
 from sim2real.engine.observe import Observer
-from sim2real.engine.runlock import LOCK_NAME, RunLock, close_inherited
-from sim2real.engine.stop import StopSignals, ignore_in_worker
+from sim2real.engine.runlock import LOCK_NAME, RunLock
+from sim2real.engine.stop import StopSignals
 from sim2real.errors import UserError
 from sim2real.fileio import prepare_output_dir
 from sim2real.methods import get_method
-from sim2real.threads import single_thread_worker, worker_count
 from sim2real.validation import validate
 
 
@@ -97,20 +94,6 @@ def _remove_if_only_lock(out: Path) -> None:
         pass
 
 
-def loader_workers(workers: int) -> int:
-    """``data.workers`` with -1 (automatic) resolved by the project's worker rule
-    (:func:`sim2real.threads.worker_count`): this rank's share of the node's cores, less one for
-    the training process itself, at least 1, no fixed cap."""
-    if workers >= 0:
-        return workers
-    return worker_count(reserve=1)
-
-
-PREFETCH = 2
-"""Samples each loader worker prepares ahead (its shared-memory bound: 2 x 8 MiB at most for a
-paper-size pair, data/shm.py). With one worker per core a GPU step waits for none."""
-
-
 def _adam(group, cfg: TrainConfig) -> torch.optim.Adam:
     """Adam for one of the method's groups: its learning rate, and its weight decay when it sets
     one (else ``optim.weight_decay``)."""
@@ -120,21 +103,6 @@ def _adam(group, cfg: TrainConfig) -> torch.optim.Adam:
         return torch.optim.Adam(params, fused=True, **kw)
     except (RuntimeError, TypeError, ValueError):
         return torch.optim.Adam(params, **kw)
-
-
-def _worker_init(worker_id: int) -> None:
-    """A DataLoader worker: one compute thread, no copy of the run lock, and SIGTERM / SIGINT
-    left to the main process (engine/stop.py)."""
-    single_thread_worker(worker_id)
-    close_inherited()
-    ignore_in_worker()
-
-
-def _worker_message(e: UserError) -> str:
-    """The original message of a UserError re-raised by a DataLoader worker (one line)."""
-    text = str(e)
-    m = re.findall(r"UserError: (.*)", text)
-    return m[-1] if "Original Traceback" in text and m else text
 
 
 class Trainer:
@@ -423,17 +391,10 @@ class Trainer:
         return losses
 
     def _loader(self):
-        wanted = loader_workers(self.cfg.data.workers)
-        w = loader_workers_for_shm(wanted, PREFETCH, self.dataset.transfer_bytes(), automatic=self.cfg.data.workers < 0)
-        if w < wanted and self.dist.is_main:
-            print(f"sim2real: {w} loader workers instead of {wanted}: /dev/shm holds no more of their samples "
-                  "(docker run --shm-size=1g for all)", file=sys.stderr)
-        self.loader_workers = w
-        return torch.utils.data.DataLoader(
-            self.dataset, batch_size=1, sampler=StepSampler(self.step, self.cfg.iterations), num_workers=w,
-            pin_memory=self.cuda, prefetch_factor=PREFETCH if w else None, persistent_workers=False,
-            worker_init_fn=_worker_init if w else None,
-        )
+        self.loader_workers, loader = make_loader(self.dataset, StepSampler(self.step, self.cfg.iterations),
+                                                  self.cfg.data.workers, pin_memory=self.cuda,
+                                                  announce=self.dist.is_main)
+        return loader
 
     def train(self, time_limit_s: float | None = None) -> Path:
         """Run from ``self.step`` to ``cfg.iterations``; returns the last checkpoint.
@@ -470,7 +431,7 @@ class Trainer:
                         with host:
                             batch = next(it)
                     except UserError as e:
-                        raise UserError(_worker_message(e)) from None
+                        raise UserError(worker_message(e)) from None
                     wait_s, wait_steps = wait_s + time.perf_counter() - t_wait, wait_steps + 1
                     step = self.step
                     batch = self._to_device(batch)
