@@ -170,6 +170,7 @@ def four_views(procedural_caster):
     return [procedural_caster.render(c) for c in cams]
 
 
+@pytest.mark.filterwarnings("ignore:Detected call of `lr_scheduler.step\\(\\)` before")  # no optimiser step here
 @pytest.mark.parametrize("name,structure", [(n, "ms_ssim") for n in sorted(METHOD_PRESETS)] + [("ours", "edges")])
 def test_a_step_and_a_translation_on_a_fake_cuda_device(name, structure, request, tmp_path, fake_cuda, four_views):
     cfg = _config(name, loss__ab_structure=structure)
