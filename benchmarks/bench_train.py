@@ -9,7 +9,9 @@ the process's peak memory (max RSS on CPU, max allocated on CUDA), for
   lists, plain Adam);
 
 and their ratio (of the median step times; ``paired_ratio_median`` is the median over rounds of
-reference/ours step time, each round running the two back to back). Both run on the same
+reference/ours step time, each round running the two back to back). On CUDA, ``ours`` also
+reports ``host_syncs``: the calls of its step that make the host wait for the GPU, by source line
+(:func:`host_syncs`). Both run on the same
 pre-generated batches (data loading is not timed; it
 runs in DataLoader workers during training). Timing runs both implementations in one process,
 alternating step by step, so that load from other processes hits both alike; peak memory comes
@@ -92,6 +94,33 @@ def _runners(impls, cfg, scene, real, sources, batches, base, device_name):
     return runners
 
 
+SYNC_WARNING = "synchronizing CUDA operation"
+"""What torch's sync debug mode warns of each call that makes the host wait for the GPU."""
+
+
+def host_syncs(run, steps: list[int]) -> dict:
+    """The calls that wait for the GPU during ``run(step)`` for ``steps``
+    (``torch.cuda.set_sync_debug_mode("warn")``), counted by the source line that made them: a
+    training step should make one (the trainer's NaN check, engine/trainer.py); each other one
+    drains the GPU's queue."""
+    import collections
+    import warnings
+
+    import torch
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            for s in steps:
+                run(s)
+        finally:
+            torch.cuda.set_sync_debug_mode(0)
+    sites = collections.Counter(f"{Path(w.filename).name}:{w.lineno}" for w in caught if SYNC_WARNING in str(w.message))
+    return {"per_step": round(sum(sites.values()) / max(len(steps), 1), 2), "steps": len(steps),
+            "sites": dict(sites.most_common(20))}
+
+
 def child(preset: str, impls: list[str], iters: int, base: Path, device_name: str) -> dict:
     """Time ``impls`` on the same batches, alternating step by step (so that a varying load
     from other processes hits both alike); the peak memory is meaningful for one impl only."""
@@ -132,6 +161,10 @@ def child(preset: str, impls: list[str], iters: int, base: Path, device_name: st
         med = statistics.median(timed)
         result[impl] = {"s_per_iteration": round(med, 4), "iterations_per_s": round(1.0 / med, 4),
                         "timed_iterations": len(timed)}
+    if "ours" in runners and iters:
+        device, run = runners["ours"]
+        result["host_syncs"] = host_syncs(run, list(range(WARMUP[preset], n))) if device.type == "cuda" else {
+            "reason": "counted on CUDA only (torch.cuda.set_sync_debug_mode)"}
     if {"ours", "reference"} <= set(times) and len(times["ours"]) > WARMUP[preset]:
         # the two steps of one round ran back to back: their ratio cancels slow drifts of the load
         pairs = [r / o for o, r in zip(times["ours"][WARMUP[preset]:], times["reference"][WARMUP[preset]:])]
@@ -226,6 +259,7 @@ def main() -> None:
             entry["throughput_ratio_ours_over_reference"] = round(
                 entry["ours"]["iterations_per_s"] / entry["reference"]["iterations_per_s"], 2)
             entry["paired_ratio_median"] = both["paired_ratio_median"]
+            entry["ours"]["host_syncs"] = both["host_syncs"]
             result["presets"][preset] = entry
             print(json.dumps({preset: entry}), file=sys.stderr)
         result["projection"] = projection_ms(base)

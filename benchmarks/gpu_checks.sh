@@ -10,8 +10,8 @@
 #                                           tensorboard, tqdm, PyYAML, threadpoolctl and pytest.
 #   bash benchmarks/gpu_checks.sh checks    there (carry .whl), within 10 min on one GPU: CUDA tests, a
 #                                           short paper-preset training run (it/s, data-wait share from
-#                                           metrics.jsonl, peak GPU memory), the training step and its
-#                                           peak memory (bench_train), translation frames/s, the data
+#                                           metrics.jsonl, peak GPU memory), the training step, its
+#                                           peak memory and its host syncs (bench_train), translation frames/s, the data
 #                                           path per stage, translation with --compile (while time
 #                                           is left), and a 20-step DDP run when there are >1
 #                                           GPUs; CONV_SHARE=1 adds the conv share of the bf16 peak
