@@ -219,7 +219,7 @@ def pooled(scene: Path, real: Path, cfg, n: int, views: int) -> dict:
 
 def loader_rate(path: Path, real: Path, cfg, workers: int, n: int) -> float:
     ds = TrainPairs(resolve_scenes([path], cfg.height, cfg.width), RealImages(real), cfg, seed=0)
-    _, loader = make_loader(ds, StepSampler(0, n + 1), workers, pin_memory=False, announce=True)  # the trainer's
+    loader = make_loader(ds, StepSampler(0, n + 1), workers, pin_memory=False, announce=True)  # the trainer's
     it = iter(loader)
     next(it)  # worker start-up is not throughput
     t = time.perf_counter()

@@ -45,16 +45,16 @@ def worker_message(e: UserError) -> str:
 
 
 def make_loader(dataset, sampler, workers: int, pin_memory: bool,
-                announce: bool) -> tuple[int, torch.utils.data.DataLoader]:
+                announce: bool) -> torch.utils.data.DataLoader:
     """A batch-1 DataLoader of ``dataset`` in ``sampler``'s order with ``workers`` (``data.workers``,
     -1 automatic) worker processes, fewer where /dev/shm holds no more of their samples (said on
-    stderr when ``announce``); returns (the number of workers, the loader)."""
+    stderr when ``announce``; the count is the loader's ``num_workers``)."""
     wanted = loader_workers(workers)
     w = loader_workers_for_shm(wanted, PREFETCH, dataset.transfer_bytes(), automatic=workers < 0)
     if w < wanted and announce:
         print(f"sim2real: {w} loader workers instead of {wanted}: /dev/shm holds no more of their samples "
               "(docker run --shm-size=1g for all)", file=sys.stderr)
-    return w, torch.utils.data.DataLoader(
+    return torch.utils.data.DataLoader(
         dataset, batch_size=1, sampler=sampler, num_workers=w, pin_memory=pin_memory,
         prefetch_factor=PREFETCH if w else None, persistent_workers=False, worker_init_fn=_worker_init if w else None,
     )

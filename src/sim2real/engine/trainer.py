@@ -391,10 +391,8 @@ class Trainer:
         return losses
 
     def _loader(self):
-        self.loader_workers, loader = make_loader(self.dataset, StepSampler(self.step, self.cfg.iterations),
-                                                  self.cfg.data.workers, pin_memory=self.cuda,
-                                                  announce=self.dist.is_main)
-        return loader
+        return make_loader(self.dataset, StepSampler(self.step, self.cfg.iterations), self.cfg.data.workers,
+                           pin_memory=self.cuda, announce=self.dist.is_main)
 
     def train(self, time_limit_s: float | None = None) -> Path:
         """Run from ``self.step`` to ``cfg.iterations``; returns the last checkpoint.
