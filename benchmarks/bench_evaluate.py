@@ -54,8 +54,8 @@ METHOD_PROBES = [
     ("sim2real.inference.anchors", "Anchors", "floor", "anchors_render"),
     ("sim2real.inference.anchors", "Anchors", "ceilings", "anchors_render"),
     ("sim2real.inference.anchors", "Anchors", "floors", "anchors_render"),
-    ("sim2real.inference.translate", "TrainedModel", "translate_views", "translate"),
-    ("sim2real.inference.translate", "FrameSequence", "translate", "translate"),
+    ("sim2real.inference.model", "TrainedModel", "translate_views", "translate"),
+    ("sim2real.inference.model", "FrameSequence", "translate", "translate"),
 ]
 STAGES = ("views_stage", "realism_stage", "segmentation_stage", "consistency_stage")
 

@@ -67,7 +67,7 @@ def measure(preset: str, method: str, iters: int, device: str, base: Path, frame
     from sim2real.config import override
     from sim2real.engine.trainer import Trainer
     from sim2real.inference.frames import iter_gbuffers
-    from sim2real.inference.translate import load_run
+    from sim2real.inference.model import load_run
     from sim2real.presets import preset as get_preset
     from sim2real.render.raycast import RayCaster
     from sim2real.scene.scene import Scene

@@ -95,7 +95,8 @@ def _cpu_seconds() -> float:
 
 
 def main() -> None:
-    from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
+    from sim2real.inference.model import load_run
+    from sim2real.inference.translate import trajectory_source, translate_sequence
     from sim2real.render.raycast import RayCaster
     from sim2real.scene.procedural import generate_scene
     from sim2real.scene.scene import Scene

@@ -42,7 +42,7 @@ def main() -> None:
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.inference.anchors import Anchors, stand_in_options
     from sim2real.inference.realimages import fit_image
-    from sim2real.inference.translate import find_checkpoint, load_run
+    from sim2real.inference.model import find_checkpoint, load_run
     from sim2real.losses import lsgan_gen_loss
     from sim2real.losses.structure import structure_ab_loss
     from sim2real.models.discriminator import MsImageDis

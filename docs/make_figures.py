@@ -43,7 +43,7 @@ from sim2real.fileio import atomic_path, atomic_write_image
 from sim2real.grid import tile
 from sim2real.inference.gt_formats import read_depth_png, read_flo
 from sim2real.inference.frames import iter_gbuffers
-from sim2real.inference.translate import load_run
+from sim2real.inference.model import load_run
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import Trajectory

@@ -122,7 +122,7 @@ def test_bad_inputs_one_line(base, tmp_path, capsys):
 def test_metric_wiring_on_a_consistent_texture(base, tmp_path, monkeypatch):
     """A stand-in 'translator' that paints a fixed 3D pattern on the surfaces is consistent by
     construction: its ORB matches must mostly land on the same 3D points, unlike shuffled frames."""
-    from sim2real.inference import translate
+    from sim2real.inference import model as translate
 
     def painted(gbuffers):
         out = []

@@ -74,7 +74,7 @@ def test_the_former_noise_shape_key_is_migrated():
 
 def test_a_foreign_method_trains_resumes_and_translates(toy_methods, train_inputs, tmp_path, procedural_caster):
     from sim2real.engine.checkpoint import load_checkpoint
-    from sim2real.inference.translate import load_run
+    from sim2real.inference.model import load_run
     from sim2real.scene.trajectory import sample_poses
 
     scenes, real = train_inputs
@@ -105,7 +105,7 @@ def test_a_foreign_method_trains_resumes_and_translates(toy_methods, train_input
 def test_inference_equals_the_training_forward_pass(name, request, tmp_path, procedural_caster):
     from sim2real.data.tensors import view_tensors
     from sim2real.engine.trainer import Trainer
-    from sim2real.inference.translate import load_run
+    from sim2real.inference.model import load_run
     from sim2real.scene.trajectory import sample_poses
 
     cfg = tiny_config(name, iterations=2, checkpoint_every=2, image_every=100)

@@ -217,7 +217,7 @@ def _train(tmp_path, name, inputs, iterations, **changes):
 def test_trains_resumes_and_translates_a_six_frame_sequence(video_train_inputs, tmp_path, procedural_caster):
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import Trainer
-    from sim2real.inference.translate import load_run
+    from sim2real.inference.model import load_run
     from sim2real.presets import config_from_dict
 
     run, seen = _train(tmp_path, "of_unit", video_train_inputs, 2, method__vc_start=0)
@@ -250,7 +250,7 @@ def test_trains_resumes_and_translates_a_six_frame_sequence(video_train_inputs, 
 def test_revisit_continues_the_state(video_train_inputs, train_inputs, tmp_path, procedural_caster):
     """1..T, T..1 through one sequence: OF-UNIT's second visit of a view differs from its first
     (history dependence); ours' is identical."""
-    from sim2real.inference.translate import load_run
+    from sim2real.inference.model import load_run
 
     views = _path(procedural_caster, 4, seed=6)
     revisit = views + views[::-1]

@@ -167,7 +167,7 @@ def test_a_real_folder_without_sequences_is_refused_by_the_cli(capsys, tmp_path,
 @pytest.mark.parametrize("name", ["recycle", "ssim_recycle"])
 def test_trains_resumes_and_translates_a_sequence(name, train_inputs, tmp_path, procedural_caster):
     from sim2real.engine.checkpoint import load_checkpoint
-    from sim2real.inference.translate import load_run
+    from sim2real.inference.model import load_run
     from sim2real.scene.trajectory import linear_path
 
     scenes, _ = train_inputs

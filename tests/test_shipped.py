@@ -13,7 +13,7 @@ from sim2real.cli.main import main
 from sim2real.config import differences, override, to_dict
 from sim2real.engine import checkpoint as ckpt
 from sim2real.errors import UserError
-from sim2real.inference.translate import load_run
+from sim2real.inference.model import load_run
 from sim2real.presets import config_from_dict, load_config, preset
 from sim2real.scene.procedural import generate_scene
 

@@ -227,7 +227,7 @@ def test_config_errors_name_the_key():
 
 def test_trains_checkpoints_resumes_and_translates_a_sequence(train_inputs, tmp_path, procedural_caster):
     from sim2real.engine.checkpoint import load_checkpoint
-    from sim2real.inference.translate import load_run
+    from sim2real.inference.model import load_run
     from sim2real.scene.trajectory import sample_poses
 
     scenes, real = train_inputs

@@ -11,7 +11,7 @@ from PIL import Image
 from train_data import scene_dir, views_dir
 
 from sim2real.cli.main import main
-from sim2real.inference.translate import load_run
+from sim2real.inference.model import load_run
 from sim2real.inference.video import read_video
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.scene import Scene

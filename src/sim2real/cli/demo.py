@@ -79,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.engine.checkpoint import load_checkpoint
     from sim2real.engine.trainer import Trainer, resolve_device
     from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate
-    from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
+    from sim2real.inference.model import load_run
+    from sim2real.inference.translate import trajectory_source, translate_sequence
     from sim2real.metrics.realism import fid_weights_status
     from sim2real.render.raycast import RayCaster
     from sim2real.scene.scene import Scene

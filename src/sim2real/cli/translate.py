@@ -40,7 +40,8 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
-    from sim2real.inference.translate import load_run, trajectory_source, translate_sequence, views_source
+    from sim2real.inference.model import load_run
+    from sim2real.inference.translate import trajectory_source, translate_sequence, views_source
 
     if args.views and (args.scene or args.trajectory):
         raise UserError("give either --views VIEWS_DIR or --scene SCENE --trajectory FILE, not both")

@@ -19,7 +19,7 @@ from sim2real.inference.anchors import Anchors, stand_in_options
 from sim2real.inference.frames import iter_gbuffers
 from sim2real.inference.report import blocks_html
 from sim2real.inference.svg import COLOURS, fmt_tick, legend_row, nice_ticks
-from sim2real.inference.translate import load_run
+from sim2real.inference.model import load_run
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import Trajectory

@@ -48,7 +48,8 @@ from sim2real.engine.trainer import Trainer, resolve_device
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, atomic_write_json as write, prepare_output_dir
 from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate
-from sim2real.inference.translate import load_run, trajectory_source, translate_sequence
+from sim2real.inference.model import load_run
+from sim2real.inference.translate import trajectory_source, translate_sequence
 from sim2real.methods import get_method
 from sim2real.metrics.realism import fid_weights_status
 from sim2real.presets import METHOD_PRESETS, budgeted, config_from_dict, default_preset

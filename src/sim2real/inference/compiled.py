@@ -6,7 +6,7 @@ the modules keep their names and state dicts. Inductor's ``freezing`` (weights a
 batch norm folded into the convolutions) was measured and left off: on a 2-core AMD EPYC, small
 preset at 256x512, fp32, 48 frames, it ran 2.50 frames/s against 2.53 without it (eager 2.10).
 Every network call of a time-independent method has the same shape
-(:class:`~sim2real.inference.translate.FrameSequence` pads the last chunk), so each network is
+(:class:`~sim2real.inference.model.FrameSequence` pads the last chunk), so each network is
 compiled once, on its first call (a time-dependent method's shorter last chunk compiles once
 more); that first call is slow (about 20 s on a 2-core CPU, see docs/gpu.md), the later ones
 faster. The compiled code is cached on disk under

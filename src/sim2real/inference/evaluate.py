@@ -59,7 +59,7 @@ from sim2real.inference.stages import (
     timed,
     views_stage,
 )
-from sim2real.inference.translate import load_run
+from sim2real.inference.model import load_run
 from sim2real.metrics.inception import load_fid_inception
 from sim2real.metrics.realism import fid_weights_status
 from sim2real.render.raycast import RayCaster
@@ -132,7 +132,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
              precision: str = "auto") -> dict:
     """Evaluate a run; writes ``out/metrics.json``, ``report.md``, ``report.html``, ``samples/``
     and ``videos/``. Returns the metrics. ``precision``: the networks' arithmetic
-    (:func:`sim2real.inference.translate.load_run`). Inputs are all checked before the long work starts; the
+    (:func:`sim2real.inference.model.load_run`). Inputs are all checked before the long work starts; the
     work is the stages of :mod:`sim2real.inference.stages`, in order."""
     s = settings or EvalSettings()
     check_settings(s)

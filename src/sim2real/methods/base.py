@@ -1,6 +1,6 @@
 """What a method is: everything specific to one way of training and running a translator.
 
-The trainer (engine/trainer.py) and inference (inference/translate.py) run any :class:`Method`
+The trainer (engine/trainer.py) and inference (inference/model.py) run any :class:`Method`
 without knowing which it is. A method
 
 * has its own typed config section, a :class:`~sim2real.config.MethodConfig` subclass

@@ -38,7 +38,7 @@ from sim2real.engine.checkpoint import (
 )
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_path, atomic_write_json, read_json
-from sim2real.inference.translate import load_run
+from sim2real.inference.model import load_run
 from sim2real.presets import config_from_dict, preset
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.scene import Scene
