@@ -122,7 +122,7 @@ def test_bad_inputs_one_line(base, tmp_path, capsys):
 def test_metric_wiring_on_a_consistent_texture(base, tmp_path, monkeypatch):
     """A stand-in 'translator' that paints a fixed 3D pattern on the surfaces is consistent by
     construction: its ORB matches must mostly land on the same 3D points, unlike shuffled frames."""
-    from sim2real.inference import model as translate
+    from sim2real.inference import model
 
     def painted(gbuffers):
         out = []
@@ -134,9 +134,9 @@ def test_metric_wiring_on_a_consistent_texture(base, tmp_path, monkeypatch):
             out.append((rgb * 255).astype(np.uint8))
         return out
 
-    monkeypatch.setattr(translate.TrainedModel, "translate_gbuffers", lambda self, name, gbuffers, batch=8: painted(gbuffers))
-    monkeypatch.setattr(translate.FrameSequence, "translate", lambda self, gbuffers: painted(gbuffers))
-    monkeypatch.setattr(translate.TrainedModel, "train_size", property(lambda self: (128, 256)))
+    monkeypatch.setattr(model.TrainedModel, "translate_gbuffers", lambda self, name, gbuffers, batch=8: painted(gbuffers))
+    monkeypatch.setattr(model.FrameSequence, "translate", lambda self, gbuffers: painted(gbuffers))
+    monkeypatch.setattr(model.TrainedModel, "train_size", property(lambda self: (128, 256)))
     s = EvalSettings(views=2, frames=40, seg_iterations=0, orb_max_k=3, orb_features=500, samples=1, anchors=False,
                      trajectory={"flow_budget": None, "max_deg_per_frame": None, "look": "swing"})  # the fast path
     m = evaluate(base / "eval_tiny_run", [scene_dir(base, SCENE_SEED)], real_dir(base), tmp_path / "w", settings=s,
