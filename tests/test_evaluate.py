@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 from eval_data import SCENE_SEED, fake_fid_weights, labelled_real_dir, tiny_run
 from train_data import real_dir, scene_dir
 
@@ -83,6 +84,7 @@ def test_evaluate_with_weights_and_labels(base, tmp_path, capsys):
     m = run_cli(capsys, base, out, labelled_real_dir(base), "--fid-weights", fake_fid_weights(base))
     check_keys(m)
     assert math.isfinite(m["fid"]) and math.isfinite(m["kid_mean"]) and m["reasons"]["fid"] is None
+    assert m["run"]["compiled"] is False and m["run"]["amp_bf16"] is False
     # detail = mean grey gradient as a share of the real images'; the stand-in's mottling and noise
     # make the ceiling's views more detailed than the smooth, flat-coloured a_ref
     p = m["proxy"]
@@ -97,10 +99,19 @@ def test_evaluate_with_weights_and_labels(base, tmp_path, capsys):
 
 
 def test_evaluate_without_weights_or_labels(base, tmp_path, capsys, monkeypatch):
+    """Also the wiring of --compile: the run's inference networks reach the compiler, for the
+    evaluation's device, and metrics.json records it (the compile itself: tests/test_translate.py)."""
+    from sim2real.inference import model
+
+    compiled = []
+    monkeypatch.setattr(model, "compile_networks", lambda nets, dev: compiled.append((nets, dev)) or len(nets))
     monkeypatch.delenv("SIM2REAL_FID_WEIGHTS", raising=False)
     out = tmp_path / "eval"
-    m = run_cli(capsys, base, out, real_dir(base))
+    m = run_cli(capsys, base, out, real_dir(base), "--compile")
     check_keys(m)
+    assert len(compiled) == 1 and str(compiled[0][1]) == "cpu"
+    assert compiled[0][0] and all(isinstance(n, torch.nn.Module) for n in compiled[0][0])
+    assert m["run"]["compiled"] is True
     assert m["fid"] is None and m["kid_mean"] is None and m["kid_std"] is None
     assert "SIM2REAL_FID_WEIGHTS" in m["reasons"]["fid"]
     assert m["dice"] is None and m["dice_a_ref"] is None and "labels" in m["reasons"]["dice"]

@@ -60,7 +60,9 @@ def test_frames_refused_with_one_line(path, tmp_path, capsys):
              (["--frames", tmp_path / "missing", "--trajectory", work / "traj.txt", "--out", tmp_path / "o3"],
               "neither a folder of frames nor a video"),
              (["--frames", work / "ceiling", "--trajectory", work / "traj.txt", "--out", tmp_path / "o4",
-               "--precision", "bf16"], "evaluates a video without one")]
+               "--precision", "bf16"], "evaluates a video without one"),
+             (["--frames", work / "ceiling", "--trajectory", work / "traj.txt", "--out", tmp_path / "o5", "--compile"],
+              "--compile compiles a run's networks")]
     for extra, msg in cases:
         assert main([str(a) for a in ["evaluate", *common, *extra]]) == 2
         err = capsys.readouterr().err.strip()

@@ -87,3 +87,11 @@ def add_precision_arg(p) -> None:
                    help="network arithmetic: auto (default: the run's bf16 on CUDA, fp32 on the CPU), fp32, or bf16 "
                         "(also on a CPU: 1.3-1.6x faster networks where the CPU has AVX512-BF16 or AMX, frames "
                         "within a few levels of fp32; elsewhere bf16 is emulated, not measured)")
+
+
+def add_compile_arg(p) -> None:
+    """``--compile`` of the commands that run a trained network."""
+    p.add_argument("--compile", action="store_true",
+                   help="compile the networks (TorchInductor; needs a C++ compiler on the CPU): the first frames wait "
+                        "for the compiler (15-20 s on a 2-core CPU, a few once cached), the rest run faster; "
+                        "for long trajectories")

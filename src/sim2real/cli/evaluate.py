@@ -3,7 +3,7 @@
     sim2real evaluate RUN --scenes SCENE_DIR... --real DIR --out DIR
                       [--trajectory FILE... (one per scene) | --frames 100] [--views 64]
     sim2real evaluate --frames DIR|VIDEO --trajectory FILE --scene SCENE_DIR --real DIR --out DIR
-                      [--fid-weights PATH] [--device auto|cpu|cuda] [--precision auto|fp32|bf16] [--checkpoint PATH]
+                      [--fid-weights PATH] [--device auto|cpu|cuda] [--precision auto|fp32|bf16] [--compile] [--checkpoint PATH]
                       [--seg-iterations 200] [--seg-size 32x64] [--seg-seeds 5] [--max-real 500] [--batch 8] [--seed 0]
 
 The second form evaluates a video made by any tool along the trajectory of the scene
@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 
 from sim2real.cli.args import (
+    add_compile_arg,
     add_motion_args,
     add_precision_arg,
     add_seg_iterations_arg,
@@ -61,6 +62,7 @@ def register(sub) -> None:
                    help="FID Inception weights (pt_inception-2015-12-05-6726825d.pth); default $SIM2REAL_FID_WEIGHTS")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     add_precision_arg(p)
+    add_compile_arg(p)
     p.add_argument("--checkpoint", metavar="PATH", help="checkpoint file instead of RUN/checkpoints/last.pt")
     p.add_argument("--batch", type=positive_int, default=8, help="frames per network call (default 8)")
     p.add_argument("--seed", type=non_negative_int, default=0)
@@ -90,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("give either a run folder RUN or --frames DIR|VIDEO, not both")
     if video is not None and args.precision != "auto":
         raise UserError("--precision sets a run's network arithmetic; --frames DIR|VIDEO evaluates a video without one")
+    if video is not None and args.compile:
+        raise UserError("--compile compiles a run's networks; --frames DIR|VIDEO evaluates a video without one")
     if video is not None and (not args.trajectory or len(args.trajectory) != 1 or len(args.scenes) != 1):
         raise UserError("--frames DIR|VIDEO needs exactly one --trajectory FILE and one --scene DIR (the video's path)")
     if video is None and args.trajectory is not None and args.frames != 100:
@@ -107,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         m = evaluate(args.run, args.scenes, args.real, args.out, trajectories=args.trajectory, settings=s,
                      fid_weights=args.fid_weights, device=args.device, checkpoint=args.checkpoint,
-                     precision=args.precision, progress=not args.no_progress)
+                     precision=args.precision, compile=args.compile, progress=not args.no_progress)
 
     def f(v, fmt="{:.4g}"):
         return "n/a" if v is None else fmt.format(v)

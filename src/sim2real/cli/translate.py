@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import add_precision_arg, positive_float, positive_int
+from sim2real.cli.args import add_compile_arg, add_precision_arg, positive_float, positive_int
 from sim2real.errors import UserError
 
 
@@ -26,10 +26,7 @@ def register(sub) -> None:
     p.add_argument("--batch", type=positive_int, default=8, help="frames per network call (default 8)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     add_precision_arg(p)
-    p.add_argument("--compile", action="store_true",
-                   help="compile the networks (TorchInductor; needs a C++ compiler on the CPU): the first frames wait "
-                        "for the compiler (15-20 s on a 2-core CPU, a few once cached), the rest run faster; "
-                        "for long trajectories")
+    add_compile_arg(p)
     p.add_argument("--checkpoint", metavar="PATH", help="checkpoint file instead of RUN/checkpoints/last.pt")
     p.add_argument("--fps", type=positive_float, help="video frame rate (default: the trajectory's, else 5)")
     p.add_argument("--workers", type=positive_int,

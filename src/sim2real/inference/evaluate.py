@@ -129,10 +129,10 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
              out: str | os.PathLike, trajectories: Sequence[str | os.PathLike] | None = None,
              settings: EvalSettings | None = None, fid_weights: str | os.PathLike | None = None,
              device: str = "auto", checkpoint: str | os.PathLike | None = None, progress: bool = True,
-             precision: str = "auto") -> dict:
+             precision: str = "auto", compile: bool = False) -> dict:
     """Evaluate a run; writes ``out/metrics.json``, ``report.md``, ``report.html``, ``samples/``
-    and ``videos/``. Returns the metrics. ``precision``: the networks' arithmetic
-    (:func:`sim2real.inference.model.load_run`). Inputs are all checked before the long work starts; the
+    and ``videos/``. Returns the metrics. ``precision`` and ``compile``: the networks' arithmetic
+    and whether they are compiled (:func:`sim2real.inference.model.load_run`). Inputs are all checked before the long work starts; the
     work is the stages of :mod:`sim2real.inference.stages`, in order."""
     s = settings or EvalSettings()
     check_settings(s)
@@ -143,7 +143,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
         raise UserError("no scenes given (--scenes SCENE_DIR...)")
     if trajectories is not None and len(trajectories) != len(scene_dirs):
         raise UserError(f"give one trajectory per scene: {len(scene_dirs)} scenes, {len(trajectories)} trajectories")
-    model = load_run(run, device, checkpoint, precision)
+    model = load_run(run, device, checkpoint, precision, compile=compile)
     scenes = []
     for d in scene_dirs:
         if not (Path(d) / "scene.json").is_file():
@@ -158,7 +158,7 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     H, W = model.train_size
     run_info = {"dir": str(Path(run).resolve()), "checkpoint": str(model.checkpoint.resolve()), "step": model.step,
                 "method": model.method.name, "device": str(model.device), "amp_bf16": model.amp,
-                "train_height": H, "train_width": W}
+                "compiled": model.compiled, "train_height": H, "train_width": W}
     return run_stages(model, scenes, trajs, trajectories, real, out, s, fid_weights, (H, W, model.cfg.data.fov_x_deg),
                       run_info, progress, t_start)
 
