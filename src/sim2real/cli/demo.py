@@ -77,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.comparison.figures import side_by_side
     from sim2real.data.embedded import make_embedded_data
     from sim2real.engine.checkpoint import load_checkpoint
-    from sim2real.engine.trainer import Trainer, resolve_device
+    from sim2real.engine.device import resolve_device
+    from sim2real.engine.trainer import Trainer
     from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate
     from sim2real.inference.model import load_run
     from sim2real.inference.translate import trajectory_source, translate_sequence

@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
                      workers=args.workers, anchors=not args.no_anchors, seg_seeds=args.seg_seeds,
                      trajectory=motion_kwargs(args))
     if video is not None:
-        from sim2real.inference.external import evaluate_frames  # loads the trainer's device logic: only here
+        from sim2real.inference.external import evaluate_frames
 
         m = evaluate_frames(video, args.scenes[0], args.trajectory[0], args.real, args.out, settings=s,
                             fid_weights=args.fid_weights, device=args.device, progress=not args.no_progress)

@@ -44,7 +44,8 @@ from sim2real.comparison.table import build_table, write_table
 from sim2real.config import override, to_dict
 from sim2real.data.embedded import make_embedded_data
 from sim2real.data.real import RealImages, RealSequences
-from sim2real.engine.trainer import Trainer, resolve_device
+from sim2real.engine.device import resolve_device
+from sim2real.engine.trainer import Trainer
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, atomic_write_json as write, prepare_output_dir
 from sim2real.inference.evaluate import EvalSettings, check_settings, evaluate

@@ -39,8 +39,8 @@ def inference_bf16(device: torch.device, choice: str, run_amp: bool) -> bool:
     CUDA and fp32 on the CPU (exact, the same frames on every CPU); 'bf16' -> bf16 on any device
     (on a CPU with bf16 instructions the networks ran 1.3-1.6x faster, frames within a few
     8-bit levels of fp32: docs/gpu.md); 'fp32' -> never. Channels-last stays CUDA-only: on the
-    CPU it made bf16 inference slower (one measurement, small preset at 256x512: 3.6 against 5.7
-    frames/s)."""
+    CPU it made the networks slower (docs/gpu.md, small preset at 256x512: fp32 2.07 -> 1.99
+    frames/s, bf16 3.55 -> 3.35)."""
     if choice not in INFERENCE_PRECISIONS:
         raise ValueError(f"precision must be one of {INFERENCE_PRECISIONS}, got {choice!r}")
     if choice == "auto":

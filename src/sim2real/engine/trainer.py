@@ -53,6 +53,7 @@ from sim2real.data.real import INDEX as REAL_INDEX, RealImages
 from sim2real.data.tensors import complete_on_device, widen
 from sim2real.data.viewpool import attach_view_pools
 from sim2real.engine import checkpoint as ckpt, distributed, precision
+from sim2real.engine.device import resolve_device
 from sim2real.engine.loader import make_loader, worker_message
 from sim2real.engine.observe import Observer
 from sim2real.engine.runlock import LOCK_NAME, RunLock
@@ -61,18 +62,6 @@ from sim2real.errors import UserError
 from sim2real.fileio import prepare_output_dir
 from sim2real.methods import get_method
 from sim2real.validation import validate
-
-
-def resolve_device(name: str, local_rank: int = 0) -> torch.device:
-    if name not in ("auto", "cpu", "cuda"):
-        raise UserError(f"device must be 'auto', 'cpu' or 'cuda', got '{name}'")
-    if name == "cpu" or (name == "auto" and not torch.cuda.is_available()):
-        return torch.device("cpu")
-    if not torch.cuda.is_available():
-        raise UserError("--device cuda was requested but no CUDA device is available (use --device auto or cpu)")
-    device = torch.device("cuda", local_rank % torch.cuda.device_count())
-    torch.cuda.set_device(device)
-    return device
 
 
 def _state_method(state: dict) -> str:

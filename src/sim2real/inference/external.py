@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from sim2real.data.real import list_images, load_rgb
-from sim2real.engine.trainer import resolve_device
+from sim2real.engine.device import resolve_device
 from sim2real.errors import UserError
 from sim2real.inference.evaluate import EvalSettings, check_settings, run_stages
 from sim2real.inference.video import read_video_frames

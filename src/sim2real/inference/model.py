@@ -33,7 +33,7 @@ import torch
 
 from sim2real.engine import precision as numerics
 from sim2real.engine.checkpoint import LAST, load_checkpoint
-from sim2real.engine.trainer import resolve_device
+from sim2real.engine.device import resolve_device
 from sim2real.errors import UserError
 from sim2real.inference.compiled import compile_networks
 from sim2real.inference.realimages import to_nchw
