@@ -149,3 +149,30 @@ def set_rng_state(state: dict) -> None:
         cuda = [s.cpu() for s in state["cuda"]]
         if len(cuda) == torch.cuda.device_count():
             torch.cuda.set_rng_state_all(cuda)
+
+
+def trained_method(state: dict) -> str:
+    """The method a checkpoint was trained with (its config section's tag; format-1 checkpoints
+    named the variant, whose method is 'ours')."""
+    section = state.get("config", {}).get("method")
+    return section.get("name", "?") if isinstance(section, dict) else "ours"
+
+
+def transfer_weights(method, modules: dict[str, torch.nn.Module], state: dict, path: Path) -> None:
+    """``--init-from``: load into ``modules`` ({'gen': ..., 'dis': ...}) the weights of the
+    trained run ``state`` (read from ``path``) that ``method`` calls transferable (e.g. not the
+    neural textures of its scenes). Refused (:class:`UserError`) when the run was trained with
+    another method or a transferable weight is absent or shaped otherwise on either side."""
+    trained = trained_method(state)
+    if trained != method.name:
+        raise UserError(f"--init-from {path} was trained with method '{trained}', not '{method.name}'")
+    for part, module in modules.items():
+        own = {k: v for k, v in module.state_dict().items() if method.transferable(k)}
+        theirs = {k: v for k, v in state[part].items() if method.transferable(k)}
+        for k in sorted(set(own) | set(theirs)):
+            if k not in own or k not in theirs or own[k].shape != theirs[k].shape:
+                shapes = [tuple(d[k].shape) if k in d else "absent" for d in (theirs, own)]
+                raise UserError(f"--init-from {path} does not fit this configuration: {part} weight '{k}' is "
+                                f"{shapes[0]} there and {shapes[1]} here (use the same generator and "
+                                "discriminator settings)")
+        module.load_state_dict(theirs, strict=False)

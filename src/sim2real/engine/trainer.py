@@ -64,13 +64,6 @@ from sim2real.methods import get_method
 from sim2real.validation import validate
 
 
-def _state_method(state: dict) -> str:
-    """The method a checkpoint was trained with (its config section's tag; format-1 checkpoints
-    named the variant, whose method is 'ours')."""
-    section = state.get("config", {}).get("method")
-    return section.get("name", "?") if isinstance(section, dict) else "ours"
-
-
 def _remove_if_only_lock(out: Path) -> None:
     """Remove a run folder that holds nothing but its lock file (a fresh run that never started)
     and the index of its real folder."""
@@ -126,7 +119,7 @@ class Trainer:
             if "optimizers" not in state:
                 raise UserError(f"{resume} is an inference checkpoint (the shipped model: no optimiser state); "
                                 "start a new run from it with --init-from")
-            trained = _state_method(state)
+            trained = ckpt.trained_method(state)
             if trained != self.method.name:
                 raise UserError(f"checkpoint {resume} was trained with method '{trained}', not '{self.method.name}'")
             scenes = scenes if scenes else state["inputs"]["scenes"]
@@ -207,7 +200,7 @@ class Trainer:
         if state is not None:
             self.method.check_resume(state, self.sources, resume)
         if init_state is not None:
-            self._init_weights(init_state)
+            ckpt.transfer_weights(self.method, {"gen": self.gen, "dis": self.dis}, init_state, self.init_from)
         self.gen.to(self.device)
         self.dis.to(self.device)
         if self.channels_last:  # conv weights channels-last (4-D tensors only: the 5-D textures stay as they are)
@@ -236,25 +229,6 @@ class Trainer:
         """Called after every step with ``(step, {name: value})``; costs one sync per step."""
         self.stopped_by = 0
         """The signal (SIGTERM, SIGINT) that stopped the latest :meth:`train`, 0 for none."""
-
-    def _init_weights(self, state: dict) -> None:
-        """``--init-from``: the networks of a trained run (every weight the method calls
-        transferable, e.g. not the neural textures of its scenes), into this fresh run; optimiser
-        states, schedules and the step start anew."""
-        path = self.init_from
-        trained = _state_method(state)
-        if trained != self.method.name:
-            raise UserError(f"--init-from {path} was trained with method '{trained}', not '{self.method.name}'")
-        for part, module in (("gen", self.gen), ("dis", self.dis)):
-            own = {k: v for k, v in module.state_dict().items() if self.method.transferable(k)}
-            theirs = {k: v for k, v in state[part].items() if self.method.transferable(k)}
-            for k in sorted(set(own) | set(theirs)):
-                if k not in own or k not in theirs or own[k].shape != theirs[k].shape:
-                    shapes = [tuple(d[k].shape) if k in d else "absent" for d in (theirs, own)]
-                    raise UserError(f"--init-from {path} does not fit this configuration: {part} weight '{k}' is "
-                                    f"{shapes[0]} there and {shapes[1]} here (use the same generator and "
-                                    "discriminator settings)")
-            module.load_state_dict(theirs, strict=False)
 
     # --- checkpoints -----------------------------------------------------------------------------
 
