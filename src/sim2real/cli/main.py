@@ -11,7 +11,8 @@ import sys
 
 from sim2real.errors import UserError
 
-COMMANDS = ("scene", "blend", "render", "realdomain", "realset", "train", "translate", "evaluate", "demo", "benchmark")
+COMMANDS = ("scene", "blend", "render", "realdomain", "realset", "train", "translate", "evaluate", "demo", "benchmark",
+            "doctor")
 """Modules of :mod:`sim2real.cli`, each exposing ``register(subparsers)``."""
 
 

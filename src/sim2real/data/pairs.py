@@ -63,6 +63,19 @@ OVERLAP_SAMPLES = 8192
 _CACHE_VIEWS = 64  # decoded G-buffers kept per worker
 
 
+VIEW_BYTES_PER_PIXEL = 26
+"""One view in transit (:func:`~sim2real.data.tensors.compact`), at most: normals fp16 (6),
+object ids int16 (2), points fp32 at most (12), and a_ref fp16 (6) or the distance fp16 (2)."""
+
+
+def pair_transfer_bytes(height: int, width: int, pairs: bool = True) -> int:
+    """Upper bound of one training sample's bytes in transit (shared memory, pinned copy): the
+    views (one, or a pair), a pair's correspondences (uv fp32 8, visible 1 per pixel) and the
+    uint8 real crop (3)."""
+    per_px = VIEW_BYTES_PER_PIXEL * (2 if pairs else 1) + (9 if pairs else 0) + 3
+    return per_px * height * width + 4096
+
+
 def overlap_grid(g: GBuffer) -> GBuffer:
     """View ``g`` on every s-th pixel of every s-th row, s the largest stride that keeps
     :data:`OVERLAP_SAMPLES` pixels (1 up to 64x128, 4 at 256x512): what the overlap of a pair is
@@ -96,15 +109,11 @@ class TrainPairs(torch.utils.data.Dataset):
         """Render a_ref in the loader worker (a CPU run: no device to hand it to, and the worker
         has time while the CPU step runs) instead of shipping what it is made of."""
 
-    VIEW_BYTES_PER_PIXEL = 26
-    """One view in transit (:func:`~sim2real.data.tensors.compact`), at most: normals fp16 (6),
-    object ids int16 (2), points fp32 at most (12), and a_ref fp16 (6) or the distance fp16 (2)."""
+    VIEW_BYTES_PER_PIXEL = VIEW_BYTES_PER_PIXEL
 
     def transfer_bytes(self) -> int:
-        """Upper bound of one sample's bytes in transit (shared memory, pinned copy): the views,
-        the correspondences (uv fp32 8, visible 1 per pixel) and the uint8 real crop (3)."""
-        per_px = self.VIEW_BYTES_PER_PIXEL * (2 if self.pairs else 1) + (9 if self.pairs else 0) + 3
-        return per_px * self.cfg.height * self.cfg.width + 4096
+        """Upper bound of one sample's bytes in transit (:func:`pair_transfer_bytes`)."""
+        return pair_transfer_bytes(self.cfg.height, self.cfg.width, self.pairs)
 
     def view_keys(self, g: GBuffer, tag: str) -> dict[str, torch.Tensor]:
         """One view's tensors: with a_ref (:attr:`a_ref_in_worker`) or with its inputs."""
