@@ -8,7 +8,7 @@
 #                                           av, embreex, trimesh, pytorch-msssim; ~50 MB). The image
 #                                           has torch, numpy, scipy, opencv, PIL, torchmetrics,
 #                                           tensorboard, tqdm, PyYAML, threadpoolctl and pytest.
-#   bash benchmarks/gpu_checks.sh checks    there (carry .whl), within 10 min on one GPU: CUDA tests, a
+#   bash benchmarks/gpu_checks.sh checks    there (carry .whl), within 10 min on one GPU: sim2real doctor, CUDA tests, a
 #                                           short paper-preset training run (it/s, data-wait share from
 #                                           metrics.jsonl, peak GPU memory), the training step, its
 #                                           peak memory and its host syncs (bench_train), translation frames/s, the data
@@ -86,7 +86,10 @@ checks|smoke)
     { "$PY" -c "import torch, platform; print(platform.platform()); print('torch', torch.__version__, 'cuda', torch.version.cuda,
 'device', torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'none')"; nvidia-smi 2>/dev/null | head -15; } \
         > "$W/environment.txt" 2>&1
-    stage pytest_cuda 100 "$PY" -m pytest -q -p no:cacheprovider -k "cuda or device_clean or precision" tests
+    stage doctor 120 "$PY" -m sim2real.cli.main doctor --json --compile
+    # the tests that need CUDA first (they skip on a CPU), then the device-clean and bf16 tests
+    stage pytest_cuda 90 "$PY" -m pytest -q -p no:cacheprovider -k cuda tests
+    stage pytest_device 90 "$PY" -m pytest -q -p no:cacheprovider -k "(device_clean or precision) and not cuda" tests
     # a real training run: loader workers by the worker rule, data-wait share and it/s from metrics.jsonl
     "$PY" - "$W/inputs" <<'PYEOF' > "$W/inputs.out" 2>&1
 import sys
