@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from sim2real.inference.export import export_ground_truth
-from sim2real.inference.video import BackgroundFrameWriter, _pyav_has_libx264, write_frames, write_video
+from sim2real.inference.video import BackgroundFrameWriter, pyav_has_libx264, write_frames, write_video
 from sim2real.render.raycast import RayCaster
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.scene.procedural import generate_scene
@@ -56,7 +56,7 @@ def main() -> None:
         result["export_bytes_per_frame"] = int(
             sum(p.stat().st_size for p in out.rglob("*") if p.is_file() and "frames" not in p.parts) / args.frames
         )
-        for backend in (["pyav"] if _pyav_has_libx264() else []) + ["imageio"]:
+        for backend in (["pyav"] if pyav_has_libx264() else []) + ["imageio"]:
             path = out / f"video_{backend}.mp4"
             t = time.perf_counter()
             write_video(frames, path, fps=traj.fps, backend=backend)

@@ -138,7 +138,6 @@ def check_compiler(probe: bool, device: torch.device) -> Check:
     from sim2real.inference import compiled
 
     if probe:
-        os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(cache_root() / "inductor"))
         try:
             compiled.check_compiler(device)
         except UserError as e:
@@ -161,9 +160,9 @@ def check_fid() -> Check:
 
 
 def check_video() -> Check:
-    from sim2real.inference.video import _pyav_has_libx264
+    from sim2real.inference.video import pyav_has_libx264
 
-    if _pyav_has_libx264():
+    if pyav_has_libx264():
         return Check("video", "ok", "H.264 through PyAV's libx264", {"backend": "pyav"})
     return Check("video", "note", "PyAV has no libx264: videos go through the ffmpeg binary of imageio-ffmpeg",
                  {"backend": "imageio"})

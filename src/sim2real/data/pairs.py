@@ -109,8 +109,6 @@ class TrainPairs(torch.utils.data.Dataset):
         """Render a_ref in the loader worker (a CPU run: no device to hand it to, and the worker
         has time while the CPU step runs) instead of shipping what it is made of."""
 
-    VIEW_BYTES_PER_PIXEL = VIEW_BYTES_PER_PIXEL
-
     def transfer_bytes(self) -> int:
         """Upper bound of one sample's bytes in transit (:func:`pair_transfer_bytes`)."""
         return pair_transfer_bytes(self.cfg.height, self.cfg.width, self.pairs)

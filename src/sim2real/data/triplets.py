@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from sim2real.data.pairs import TrainPairs
+from sim2real.data.pairs import VIEW_BYTES_PER_PIXEL, TrainPairs
 from sim2real.data.real import RealSequences
 from sim2real.data.tensors import compact
 from sim2real.render.warp import correspondences
@@ -47,7 +47,7 @@ class TrainTriplets(TrainPairs):
     def transfer_bytes(self) -> int:
         """Upper bound of one sample's bytes in transit: three views, two correspondences, three
         real crops (see :meth:`TrainPairs.transfer_bytes`)."""
-        per_px = FRAMES * self.VIEW_BYTES_PER_PIXEL + (FRAMES - 1) * 9 + FRAMES * 3
+        per_px = FRAMES * VIEW_BYTES_PER_PIXEL + (FRAMES - 1) * 9 + FRAMES * 3
         return per_px * self.cfg.height * self.cfg.width + 4096
 
     def __getitem__(self, step: int) -> dict[str, torch.Tensor]:

@@ -55,7 +55,9 @@ def _load_compiler_stack_quietly() -> None:
 
 def check_compiler(device: torch.device) -> None:
     """Raise a one-line :class:`UserError` when TorchInductor cannot compile for ``device``
-    (no C++ compiler for the CPU, no Triton for CUDA, ...)."""
+    (no C++ compiler for the CPU, no Triton for CUDA, ...). Compiled code is cached under
+    ``$SIM2REAL_CACHE/inductor/`` unless ``TORCHINDUCTOR_CACHE_DIR`` says otherwise."""
+    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(cache_root() / "inductor"))
     try:
         _load_compiler_stack_quietly()
         with torch.inference_mode():
@@ -73,7 +75,6 @@ def compile_networks(networks: list[nn.Module], device: torch.device) -> int:
     not say which networks it runs."""
     if not networks:
         raise UserError("--compile: this method does not list the networks its translation runs")
-    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(cache_root() / "inductor"))
     check_compiler(device)
     for net in networks:
         net.compile()

@@ -52,7 +52,8 @@ def pad_even(frame: np.ndarray) -> np.ndarray:
     return np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
 
 
-def _pyav_has_libx264() -> bool:
+def pyav_has_libx264() -> bool:
+    """Whether PyAV brings the libx264 encoder (else :func:`write_video` uses the ffmpeg binary)."""
     return "libx264" in av.codecs_available
 
 
@@ -114,8 +115,8 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
     if backend not in ("auto", "pyav", "imageio"):
         raise ValueError(f"backend must be 'auto', 'pyav' or 'imageio', got {backend!r}")
     if backend == "auto":
-        backend = "pyav" if _pyav_has_libx264() else "imageio"
-    if backend == "pyav" and not _pyav_has_libx264():
+        backend = "pyav" if pyav_has_libx264() else "imageio"
+    if backend == "pyav" and not pyav_has_libx264():
         raise UserError("PyAV with libx264 is not available; install 'av' or use backend='imageio'")
     _rate(fps)
     it = iter(frames)
