@@ -5,9 +5,15 @@
 # the command's output alone already holds the figures.
 #
 #   bash benchmarks/gpu_checks.sh fetch     here, once: .whl/ with what the GPU image lacks (cp312:
-#                                           av, embreex, trimesh, pytorch-msssim; ~50 MB). The image
-#                                           has torch, numpy, scipy, opencv, PIL, torchmetrics,
-#                                           tensorboard, tqdm, PyYAML, threadpoolctl and pytest.
+#                                           av, embreex, trimesh, pytorch-msssim, kornia, kornia-rs;
+#                                           55 MiB). The image has torch, numpy, scipy, opencv, PIL,
+#                                           torchmetrics, tensorboard, tqdm, PyYAML, threadpoolctl,
+#                                           pytest and pytest-timeout; not imagehash (realset only,
+#                                           imported on use) nor imageio-ffmpeg (the video fallback
+#                                           where PyAV lacks libx264, imported on use).
+#                                           Where the tree and .whl must fit 64 MiB together, leave
+#                                           the shipped model (27 MiB; no check uses it) behind:
+#                                           tree without it 5 MiB + .whl 55 MiB.
 #   bash benchmarks/gpu_checks.sh checks    there (carry .whl), within 10 min on one GPU: sim2real doctor, CUDA tests, a
 #                                           short paper-preset training run (it/s, data-wait share from
 #                                           metrics.jsonl, peak GPU memory), the training step, its
@@ -34,7 +40,7 @@ mkdir -p "$OUT"
 if [ "$MODE" = fetch ]; then
     grep -qx '/.whl/' .git/info/exclude 2>/dev/null || echo '/.whl/' >> .git/info/exclude
     mkdir -p .whl
-    for pkg in av embreex trimesh pytorch-msssim; do
+    for pkg in av embreex trimesh pytorch-msssim kornia kornia-rs; do
         python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
             --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 \
             --platform manylinux2014_x86_64 -d .whl "$pkg" || exit 1

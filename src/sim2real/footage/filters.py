@@ -14,7 +14,6 @@ The hash is ``imagehash``'s (a maintained library on the registry), not a DCT ha
 
 from __future__ import annotations
 
-import imagehash
 import numpy as np
 from PIL import Image
 
@@ -39,6 +38,8 @@ def exposure(image: np.ndarray, mask: np.ndarray) -> str | None:
 
 def phash(image: np.ndarray, mask: np.ndarray) -> int:
     """64-bit perceptual hash of ``image`` with the pixels outside ``mask`` black."""
+    import imagehash  # imported on use: only ``sim2real realset`` hashes, and imagehash loads PyWavelets
+
     im = np.where(mask[..., None], image, 0).astype(np.uint8)
     h = imagehash.phash(Image.fromarray(im))
     return int(str(h), 16)

@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Iterable, Iterator
 
 import av
-import imageio_ffmpeg
 import numpy as np
 
 from sim2real.errors import UserError
@@ -87,6 +86,8 @@ def _encode_pyav(frames: Iterator[np.ndarray], first: np.ndarray, tmp: Path, fps
 
 
 def _encode_imageio(frames: Iterator[np.ndarray], first: np.ndarray, tmp: Path, fps: float, crf: int) -> int:
+    import imageio_ffmpeg  # the fallback only: PyAV's own wheels bring libx264
+
     size = first.shape[:2]
     hp, wp = pad_even(first).shape[:2]
     writer = imageio_ffmpeg.write_frames(
