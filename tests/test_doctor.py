@@ -90,6 +90,14 @@ def test_compiler_states(monkeypatch):
     assert doctor.check_compiler(True, torch.device("cpu")).figures == {"available": True, "probed": True}
 
 
+def test_fid_weights_states(monkeypatch, tmp_path):
+    monkeypatch.delenv("SIM2REAL_FID_WEIGHTS", raising=False)
+    assert doctor.check_fid().status == "note"  # absent: realism falls back to the weight-free tests
+    monkeypatch.setenv("SIM2REAL_FID_WEIGHTS", str(tmp_path / "missing.pth"))
+    c = doctor.check_fid()
+    assert c.status == "warn" and "missing.pth" in c.text
+
+
 def test_command_json_and_exit_status(capsys):
     code = main(["doctor", "--json"])
     checks = json.loads(capsys.readouterr().out)

@@ -23,6 +23,7 @@ from sim2real.data.shm import HEADROOM, free_shared_memory
 from sim2real.data.viewpool import bytes_per_view
 from sim2real.engine.loader import PREFETCH, loader_workers
 from sim2real.engine.precision import cpu_has_bf16
+from sim2real.errors import UserError
 from sim2real.fileio import cache_root
 from sim2real.metrics.realism import fid_weights_status
 from sim2real.presets import preset
@@ -134,7 +135,6 @@ def check_compiler(probe: bool, device: torch.device) -> Check:
     """``--compile`` needs TorchInductor to compile for the device: probed when ``probe`` (a few
     seconds to a minute: it compiles a one-line function), else whether a C++ compiler is on the
     PATH (the CPU's requirement)."""
-    from sim2real.errors import UserError
     from sim2real.inference import compiled
 
     if probe:
@@ -152,7 +152,10 @@ def check_compiler(probe: bool, device: torch.device) -> Check:
 
 
 def check_fid() -> Check:
-    s = fid_weights_status()
+    try:
+        s = fid_weights_status()
+    except UserError as e:  # $SIM2REAL_FID_WEIGHTS names a file that is not there
+        return Check("fid", "warn", str(e), {"path": None})
     if s["available"]:
         return Check("fid", "ok", f"FID Inception weights {s['path']}", {"path": s["path"]})
     return Check("fid", "note", f"{s['reason']}; realism is then the classifier two-sample test and the proxy",
