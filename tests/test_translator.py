@@ -190,6 +190,25 @@ def test_subpixel_up_step_equals_upsample_then_conv(pad_type, kernel, hw):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
 
 
+def test_subpixel_up_step_compiles(tmp_path, monkeypatch):
+    """TorchInductor compiles the sub-pixel form (``translate --compile``) to the eager values.
+    Its per-phase bias is a tensor of its own: inductor 2.11 could not lower a convolution whose
+    bias was a view (``repeat_interleave``)."""
+    import torch._dynamo
+
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path / "inductor"))
+    torch._dynamo.reset()
+    torch.manual_seed(0)
+    layer = UpConv2dBlock(8, 4, 5, norm="none", activation="relu", pad_type="reflect").eval()
+    layer.subpixel = True
+    x = torch.randn(2, 8, 8, 12)
+    with torch.inference_mode():
+        want = layer(x)
+        got = torch.compile(layer)(x)
+    torch._dynamo.reset()
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+
+
 def test_decoder_up_step_is_the_release_layer_sequence():
     """Same state dict into MUNIT's [Upsample, Conv2dBlock(k5, LN, ReLU)]: same output, in both forms."""
     from sim2real.models.layers import Conv2dBlock

@@ -149,7 +149,10 @@ class UpConv2dBlock(nn.Module):
         w = torch.einsum("pak,qbl,oikl->opqiab", m, m, conv.weight)
         w = w.reshape(-1, conv.in_channels, 2 * r + 1, 2 * r + 1)
         mode = "constant" if self.pad_type == "zero" else "replicate"
-        y = F.pixel_shuffle(F.conv2d(F.pad(x, (r, r, r, r), mode=mode), w, conv.bias.repeat_interleave(4)), 2)
+        # each output channel's bias for its four phases, gathered into a tensor of its own: TorchInductor
+        # 2.11 cannot lower a convolution whose bias is a view (repeat_interleave(4) is one there)
+        bias = conv.bias.index_select(0, torch.arange(4 * conv.out_channels, device=conv.bias.device) // 4)
+        y = F.pixel_shuffle(F.conv2d(F.pad(x, (r, r, r, r), mode=mode), w, bias), 2)
         if self.pad_type == "reflect":  # outer p output rows / columns, the direct way
             B = x.shape[0]
             up = lambda t: F.interpolate(t, scale_factor=2, mode="nearest")
