@@ -6,16 +6,14 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 import torch
-from train_data import real_dir, scene_dir, tiny_config
+from train_data import child_env, real_dir, scene_dir, tiny_config
 
 from sim2real.engine.checkpoint import load_checkpoint, save_checkpoint
 from sim2real.engine.trainer import Trainer
 
-SRC = Path(__file__).resolve().parents[1] / "src"
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +84,7 @@ def test_checkpoint_write_is_atomic(tmp_path):
 def test_kill_9_then_resume(tmp_path, inputs, method):
     scenes, real = inputs
     out = tmp_path / "run"
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    env = child_env()
     cmd = [sys.executable, "-m", "sim2real.cli.main", "train", "--preset", "tiny", "--method", method, "--scenes",
            str(scenes), "--real", str(real), "--out", str(out), "--device", "cpu", "--no-progress"]
     proc = subprocess.Popen(cmd + ["--iterations", "100000", "--checkpoint-every", "4"], env=env,

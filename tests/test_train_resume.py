@@ -15,13 +15,13 @@ from pathlib import Path
 
 import pytest
 import yaml
+from train_data import child_env
 
 from sim2real.cli.main import main
 from sim2real.engine.checkpoint import load_checkpoint
 from sim2real.engine.runlock import LOCK_NAME
 from sim2real.presets import preset
 
-SRC = Path(__file__).resolve().parents[1] / "src"
 
 
 def command(scenes, real, out, *extra):
@@ -129,7 +129,7 @@ HOLDER = ("import sys, time; from sim2real.engine.runlock import RunLock; lock =
 
 def test_one_writer_per_run_and_a_killed_holder_blocks_nobody(capsys, run_dir):
     holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(run_dir)], stdout=subprocess.PIPE, text=True,
-                              env={**os.environ, "PYTHONPATH": str(SRC)})
+                              env=child_env())
     try:
         assert holder.stdout.readline().strip() == "locked"
         before = snapshot(run_dir)

@@ -12,13 +12,12 @@ import time
 from pathlib import Path
 
 import pytest
-from train_data import tiny_config
+from train_data import child_env, tiny_config
 
 from sim2real.cli.main import main
 from sim2real.engine import checkpoint as ckpt
 from sim2real.engine.trainer import Trainer
 
-SRC = Path(__file__).resolve().parents[1] / "src"
 # the CLI with default dispositions of both signals (a shell's background job inherits SIGINT ignored)
 CHILD = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
          "signal.signal(signal.SIGTERM, signal.SIG_DFL); from sim2real.cli.main import main; sys.exit(main(sys.argv[1:]))")
@@ -52,7 +51,7 @@ class Child:
         self.folder, self.argv = folder, argv
         self.out = Path(argv[argv.index("--out") + 1])
         with open(folder / "stdout.txt", "w") as o, open(folder / "stderr.txt", "w") as e:
-            env = {**os.environ, "PYTHONPATH": str(SRC), "OMP_NUM_THREADS": "1"}  # two children share 2 cores
+            env = child_env(OMP_NUM_THREADS="1")  # two children share 2 cores
             self.proc = subprocess.Popen([sys.executable, "-c", CHILD, *argv], env=env, stdout=o, stderr=e, **popen)
 
     def stderr(self) -> str:

@@ -120,3 +120,14 @@ def resume_run(run, iterations: int):
     finally:
         trainer.close()
     return trainer, start
+
+
+def child_env(**extra: str) -> dict[str, str]:
+    """The environment of a child Python process: this checkout's ``src`` first on PYTHONPATH,
+    then whatever the parent's PYTHONPATH held (packages installed by PYTHONPATH stay visible),
+    and ``extra``."""
+    import os
+
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    path = os.pathsep.join(p for p in (src, os.environ.get("PYTHONPATH")) if p)
+    return {**os.environ, "PYTHONPATH": path, **extra}
