@@ -45,10 +45,12 @@ def test_shared_memory_by_hand(monkeypatch):
     64 MiB x 0.8 holds 3 of them, and all 15 need 15 x 16,785,408 / 0.8 bytes = 300 MiB."""
     monkeypatch.setattr(doctor, "loader_workers", lambda workers: 15)
     c = doctor.check_shared_memory(free=64 * MiB)
-    assert c.status == "warn" and c.figures["workers_fit"] == 3 and c.figures["per_worker_mib"] == 16.0
-    assert "holds 3 of 15" in c.text and "about 300 MiB" in c.text and "--shm-size" in c.text
-    c = doctor.check_shared_memory(free=GiB)
-    assert c.status == "ok" and c.figures["workers_fit"] == 51
+    assert c.status == "warn" and c.figures["workers_started"] == 3 and c.figures["per_worker_mib"] == 16.0
+    assert "holds 3 of 15" in c.text and "training starts 3" in c.text and "about 300 MiB" in c.text
+    c = doctor.check_shared_memory(free=16 * MiB)  # 12.8 MiB usable: not one worker
+    assert c.status == "warn" and c.figures["workers_started"] == 0 and "training stops" in c.text
+    c = doctor.check_shared_memory(free=GiB)  # 858 MB usable: 51 workers' worth
+    assert c.status == "ok" and c.figures["workers_started"] == 15
 
 
 def test_cache_disk_by_hand(monkeypatch, tmp_path):

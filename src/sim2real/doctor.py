@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from sim2real.data.pairs import pair_transfer_bytes
-from sim2real.data.shm import HEADROOM, free_shared_memory
+from sim2real.data.shm import HEADROOM, free_shared_memory, loader_workers_for_shm
 from sim2real.data.viewpool import bytes_per_view
 from sim2real.engine.loader import PREFETCH, loader_workers
 from sim2real.engine.precision import cpu_has_bf16
@@ -93,20 +93,25 @@ def check_shared_memory(free: int | None = None) -> Check:
     free = free_shared_memory() if free is None else free
     workers = loader_workers(-1)
     cfg = preset("paper").data
-    per_worker = PREFETCH * pair_transfer_bytes(cfg.height, cfg.width)
+    sample = pair_transfer_bytes(cfg.height, cfg.width)
+    per_worker = PREFETCH * sample
     if free is None:
         return Check("shm", "ok", "no /dev/shm on this system (the loader uses the platform's own shared memory)",
                      {"free_mib": None})
-    fits = int(free * HEADROOM) // per_worker
+    try:  # the trainer's own rule: as many of the automatic workers as fit
+        started = loader_workers_for_shm(workers, PREFETCH, sample, automatic=True, free=free)
+    except UserError:  # not even one fits: training stops with this advice
+        started = 0
     figures = {"free_mib": round(free / MiB), "per_worker_mib": round(per_worker / MiB, 1), "workers_wanted": workers,
-               "workers_fit": fits}
-    if fits >= workers:
+               "workers_started": started}
+    if started >= workers:
         return Check("shm", "ok", f"/dev/shm {free / MiB:.0f} MiB free: holds the {workers} loader worker(s) "
                      f"({per_worker / MiB:.1f} MiB each at paper size)", figures)
     need = workers * per_worker / HEADROOM
-    return Check("shm", "warn", f"/dev/shm {free / MiB:.0f} MiB free holds {fits} of {workers} loader workers at paper "
-                 f"size: training starts {max(fits, 0)}; give the container about {need / MiB:.0f} MiB "
-                 "(docker run --shm-size=1g)", figures)
+    then = f"training starts {started}" if started else "training stops"
+    return Check("shm", "warn", f"/dev/shm {free / MiB:.0f} MiB free holds {started} of {workers} loader workers at "
+                 f"paper size: {then}; give the container about {need / MiB:.0f} MiB (docker run --shm-size=1g)",
+                 figures)
 
 
 def check_cache(root: Path | None = None) -> Check:
