@@ -14,14 +14,14 @@
 #                                           Where the tree and .whl must fit 64 MiB together, leave
 #                                           the shipped model (27 MiB; no check uses it) behind:
 #                                           tree without it 5 MiB + .whl 55 MiB.
-#   bash benchmarks/gpu_checks.sh checks    there (carry .whl), within 10 min on one GPU: sim2real doctor, CUDA tests, a
+#   bash benchmarks/gpu_checks.sh checks    there (with .whl), within 10 min on one GPU: sim2real doctor, CUDA tests, a
 #                                           short paper-preset training run (it/s, data-wait share from
 #                                           metrics.jsonl, peak GPU memory), the training step, its
 #                                           peak memory and its host syncs (bench_train), translation frames/s, the data
 #                                           path per stage, translation with --compile (while time
 #                                           is left), and a 20-step DDP run when there are >1
 #                                           GPUs; CONV_SHARE=1 adds the conv share of the bf16 peak
-#   bash benchmarks/gpu_checks.sh demo      there (carry .whl): `sim2real demo` on the paper preset,
+#   bash benchmarks/gpu_checks.sh demo      there (with .whl): `sim2real demo` on the paper preset,
 #                                           DEMO_MINUTES (4) of training, then the learning statistics
 #   PY=.venv/bin/python DEV=cpu bash benchmarks/gpu_checks.sh smoke
 #                                           here: the same stages at tiny sizes on the CPU, to check

@@ -45,6 +45,7 @@ def test_frames_of_the_ceiling_reproduce_the_ceiling_row(path, capsys):
     assert model["of_error_vs_ceiling"] == 0.0
     assert m["odometry"]["rows"]["model"] == m["odometry"]["rows"]["ceiling"]
     assert m["run"]["frames"].endswith("ceiling") and m["inputs"]["scenes"][0]["frames"] == 12
+    assert m["run"]["compiled"] is False and m["run"]["amp_bf16"] is False  # the keys of a run's evaluation
     assert "made by any tool" in (out / "report.md").read_text()
 
 

@@ -132,8 +132,9 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
              precision: str = "auto", compile: bool = False) -> dict:
     """Evaluate a run; writes ``out/metrics.json``, ``report.md``, ``report.html``, ``samples/``
     and ``videos/``. Returns the metrics. ``precision`` and ``compile``: the networks' arithmetic
-    and whether they are compiled (:func:`sim2real.inference.model.load_run`). Inputs are all checked before the long work starts; the
-    work is the stages of :mod:`sim2real.inference.stages`, in order."""
+    and whether they are compiled (:func:`sim2real.inference.model.load_run`). Inputs are all
+    checked before the long work starts; the work is the stages of
+    :mod:`sim2real.inference.stages`, in order."""
     s = settings or EvalSettings()
     check_settings(s)
     t_start = time.perf_counter()
