@@ -19,8 +19,9 @@ from pathlib import Path
 import torch
 
 from sim2real.data.pairs import pair_transfer_bytes
-from sim2real.data.shm import HEADROOM, free_shared_memory, loader_workers_for_shm
+from sim2real.data.shm import HEADROOM, MiB, free_shared_memory, loader_workers_for_shm
 from sim2real.data.viewpool import bytes_per_view
+from sim2real.engine.device import resolve_device
 from sim2real.engine.loader import PREFETCH, loader_workers
 from sim2real.engine.precision import cpu_has_bf16
 from sim2real.errors import UserError
@@ -30,7 +31,6 @@ from sim2real.presets import preset
 from sim2real.threads import local_ranks, usable_cores
 
 GiB = 2**30
-MiB = 2**20
 INSTALL_HINT = "install a CUDA build of torch first (docs/gpu.md, Install)"
 
 
@@ -187,7 +187,7 @@ def check_blend() -> Check:
 
 def run_checks(compile_probe: bool = False) -> list[Check]:
     """Every check, in the order printed."""
-    device = torch.device("cuda") if torch.cuda.is_available() else torch.device("cpu")
+    device = resolve_device("auto")
     return [check_torch(), check_gpu(), check_cpu(), check_shared_memory(), check_cache(),
             check_compiler(compile_probe, device), check_video(), check_fid(), check_blend()]
 
