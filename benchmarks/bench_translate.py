@@ -20,6 +20,12 @@ first's: mean, 99th percentile and largest absolute difference in 8-bit levels. 
 ``+compile`` (``fp32+compile``, ``bf16+compile``) is the same with ``sim2real translate
 --compile``; its ``warmup_seconds`` (the first pass, which compiles) against the others' says
 how many frames the compiling costs.
+Beside the frame rates, ``network_gflop_per_frame`` counts the networks' convolution and matrix
+FLOPs of one frame (``torch.utils.flop_counter``), ``matmul_gflops`` measures what this device
+attains on a large matrix product in each precision (the practical ceiling of those FLOPs), and
+each precision's ``network_gflops`` and ``share_of_matmul_rate`` say how near the networks run
+to it; ``network_fps_at_matmul_rate`` is the frame rate the networks would allow at that ceiling,
+the most any change short of a smaller network or faster hardware could give.
 ``--run RUN --scene SCENE`` times a trained run at its own size (for example the demo's
 ``demo/run`` with ``demo/scenes/sim_0``) instead of untrained presets at 256x512: the frame
 differences of a trained model are the ones that matter.
@@ -88,6 +94,54 @@ def _timed(model, scene_name, gbuffers, batch) -> tuple[float, list]:
     return time.perf_counter() - t0, frames
 
 
+def count_gflop(fn) -> float:
+    """Convolution and matrix GFLOP that ``fn()`` runs, as ``torch.utils.flop_counter`` counts them
+    (a convolution: 2 cin cout k_h k_w h_out w_out per sample; the sub-pixel up-step as the
+    convolutions it runs)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as counter:
+        fn()
+    return counter.get_total_flops() / 1e9
+
+
+def _network_gflop(run, device, scene_name, gbuffer) -> float:
+    """GFLOP of one frame through the run's networks (eager, fp32)."""
+    from sim2real.inference.model import load_run
+
+    model = load_run(run, device=device, precision="fp32")
+    return count_gflop(lambda: model.translate_gbuffers(scene_name, [gbuffer], 1))
+
+
+def _matmul_gflops(device: str, dtype: torch.dtype, repeats: int = 10) -> float:
+    """GFLOP/s of an n x n by n x n matrix product on ``device`` (2 n^3 FLOP), the best of ``repeats``
+    (a ceiling is what the hardware reaches; a busy spell only lowers it: medians of five ranged
+    from 119 to 181 GFLOP/s on an idle 2-core CPU), after a second of fp32 products. n grows
+    from 512 while a product takes under 50 ms, up to 2048 on the CPU and 8192 on a GPU (emulated
+    bf16 on a CPU without bf16 instructions runs at about 1 GFLOP/s)."""
+
+    def seconds(a, b) -> float:
+        if device == "cuda":
+            torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        torch.mm(a, b)
+        if device == "cuda":
+            torch.cuda.synchronize()
+        return time.perf_counter() - t0
+
+    n, cap = 512, 8192 if device == "cuda" else 2048
+    warm = time.perf_counter() + 1.0  # the first second after start-up runs slower (measured 124 against 160-180)
+    while time.perf_counter() < warm:
+        seconds(*(torch.randn(512, 512, device=device) for _ in range(2)))
+    while True:
+        a, b = (torch.randn(n, n, device=device).to(dtype) for _ in range(2))
+        seconds(a, b)  # warms up
+        if n >= cap or seconds(a, b) >= 0.05:
+            break
+        n *= 2
+    return 2 * n**3 / min(seconds(a, b) for _ in range(repeats)) / 1e9
+
+
 def _cpu_seconds() -> float:
     """User and system CPU seconds of this process and of its children that have ended."""
     own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -118,6 +172,8 @@ def main() -> None:
     if bool(args.run) != bool(args.scene):
         raise SystemExit("give --run RUN and --scene SCENE together")
     precisions = args.precisions.split(",")
+    matmul = {name: round(_matmul_gflops(args.device, dtype), 1)
+              for name, dtype in (("fp32", torch.float32), ("bf16", torch.bfloat16))}
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -146,7 +202,9 @@ def main() -> None:
             traj = make_trajectory(caster, args.frames, h, w, first.cfg.data.fov_x_deg, seed=0)
             traj.save(tmp / "traj.txt")
             gbuffers = [caster.render(c) for c in traj.cameras]
+            gflop = _network_gflop(run, args.device, scene.name, gbuffers[0])
             res = {"height": h, "width": w, "generator_filters": first.cfg.generator.filters,
+                   "network_gflop_per_frame": round(gflop, 2),
                    "precisions": {p: {"amp_bf16": m.amp} for p, m in models.items()}}
             if args.repeats > 0:  # --repeats 0: no model timing (e.g. for --pipeline alone)
                 times = {p: [] for p in precisions}
@@ -157,8 +215,11 @@ def main() -> None:
                         times[p].append(_timed(m, scene.name, gbuffers, args.batch)[0])
                 for p in precisions:
                     r = res["precisions"][p]
-                    r.update(model_fps=args.frames / statistics.median(times[p]), model_seconds=times[p],
-                             warmup_seconds=warm[p][0])
+                    fps = args.frames / statistics.median(times[p])
+                    ceiling = matmul["bf16" if models[p].amp else "fp32"]
+                    r.update(model_fps=fps, model_seconds=times[p], warmup_seconds=warm[p][0],
+                             network_gflops=round(gflop * fps, 1), share_of_matmul_rate=round(gflop * fps / ceiling, 3),
+                             network_fps_at_matmul_rate=round(ceiling / gflop, 2))
                     if p != precisions[0]:
                         r[f"levels_vs_{precisions[0]}"] = _levels(frames[p], frames[precisions[0]])
             for p, model in models.items():
@@ -186,7 +247,7 @@ def main() -> None:
     print(json.dumps({
         "benchmark": "translate", "frames": args.frames, "batch": args.batch,
         "workers": args.workers, "device": args.device, "cuda_name": torch.cuda.get_device_name() if args.device == "cuda" else None,
-        "cpu_native_bf16": cpu_has_bf16(),
+        "cpu_native_bf16": cpu_has_bf16(), "matmul_gflops": matmul,
         "machine": platform.machine(), "cpus": os.cpu_count(), "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(), "runs": results,
     }, indent=2))

@@ -62,3 +62,42 @@ def test_host_syncs_are_counted_by_source_line(monkeypatch):
     assert modes == ["warn", 0]
     assert got == {"per_step": 3.0, "steps": 2,
                    "sites": {f"test_benchmark_scripts.py:{a}": 4, f"test_benchmark_scripts.py:{a + 1}": 2}}
+
+
+def test_network_flops_are_counted_layer_by_layer():
+    """bench_translate's FLOP count of E_A then G_B, against the layers summed by hand (2 cin cout
+    k^2 h w per convolution): 8 filters, two downsamplings, one residual block, 8 content channels,
+    an 11-channel 64x128 input. Both up-steps are below the sub-pixel form's break-even, so they
+    run (and count) as the direct conv5 on the upsampled image; forced sub-pixel, each counts its
+    four 3x3 phase convolutions at the input's size, the reflect border's direct rows and columns,
+    and the phase kernels' derivation from the 5x5 weight (per filter pair 2 x 2 phases x 3 x 3
+    taps, each a sum over 5 x 5 taps) instead."""
+    import torch
+
+    from sim2real.config import GeneratorConfig
+    from sim2real.models.layers import UpConv2dBlock
+    from sim2real.models.translator import Translator
+
+    sys.path.insert(0, str(BENCH))
+    try:
+        import bench_translate
+    finally:
+        sys.path.remove(str(BENCH))
+    conv = lambda cin, cout, k, h, w: 2 * cin * cout * k * k * h * w
+    res = 2 * conv(32, 32, 3, 16, 32)
+    enc = conv(11, 8, 7, 64, 128) + conv(8, 16, 4, 32, 64) + conv(16, 32, 4, 16, 32) + res + conv(32, 8, 3, 16, 32)
+    dec = conv(8, 32, 3, 16, 32) + res + conv(32, 16, 5, 32, 64) + conv(16, 8, 5, 64, 128) + conv(8, 3, 7, 64, 128)
+    tr = Translator(8, GeneratorConfig(filters=8, res_blocks=1)).eval()
+    x = torch.randn(1, 11, 64, 128)
+    run = lambda: tr.dec_b(tr.enc_a(x))
+    with torch.inference_mode():
+        assert bench_translate.count_gflop(run) * 1e9 == enc + dec
+        ups = [m for m in tr.dec_b.modules() if isinstance(m, UpConv2dBlock)]
+        for m in ups:
+            m.subpixel = True
+        # phases: 4 cout outputs of 3x3 at the input size; border: p = 2 rows top and bottom (width 2w,
+        # batch 2 after the cat) and 2 columns left and right (height 2h), direct conv5
+        sub = lambda cin, cout, h, w: conv(cin, 4 * cout, 3, h, w) + 2 * conv(cin, cout, 5, 2, 2 * w) \
+            + 2 * conv(cin, cout, 5, 2 * h, 2) + 2 * cin * cout * 36 * 25
+        subpixel = dec - conv(32, 16, 5, 32, 64) - conv(16, 8, 5, 64, 128) + sub(32, 16, 16, 32) + sub(16, 8, 32, 64)
+        assert bench_translate.count_gflop(run) * 1e9 == enc + subpixel
