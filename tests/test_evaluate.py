@@ -130,6 +130,27 @@ def test_bad_inputs_one_line(base, tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "FID Inception weights not found" in err
 
 
+def test_emulated_bf16_is_noted_before_the_evaluation(base, tmp_path, capsys, monkeypatch):
+    """On a CPU without bf16 instructions, --precision bf16 is noted in one line before the
+    evaluation starts (here stopped at once); with them, or in fp32, nothing is noted."""
+    from sim2real.errors import UserError
+    from sim2real.inference import evaluate
+
+    def stop(*args, **kwargs):
+        raise UserError(f"stopped here ({kwargs['precision']})")
+
+    monkeypatch.setattr(evaluate, "evaluate", stop)
+    argv = ["evaluate", base / "eval_tiny_run", "--scenes", scene_dir(base, SCENE_SEED), "--real", real_dir(base),
+            "--out", tmp_path / "o", "--device", "cpu"]
+    for has, extra, noted in ((False, ["--precision", "bf16"], True), (True, ["--precision", "bf16"], False),
+                              (False, [], False)):
+        monkeypatch.setattr("sim2real.engine.precision.cpu_has_bf16", lambda: has)
+        assert main([str(a) for a in argv + extra]) == 2
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert lines[-1].endswith(f"stopped here ({'bf16' if extra else 'auto'})")
+        assert len(lines) == 1 + noted and (not noted or lines[0].startswith("note: this CPU has no bf16")), lines
+
+
 def test_metric_wiring_on_a_consistent_texture(base, tmp_path, monkeypatch):
     """A stand-in 'translator' that paints a fixed 3D pattern on the surfaces is consistent by
     construction: its ORB matches must mostly land on the same 3D points, unlike shuffled frames."""

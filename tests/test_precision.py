@@ -98,6 +98,14 @@ def test_inference_precision_choices():
         precision.inference_bf16(cpu, "fp16", True)
 
 
+def test_emulated_bf16_is_bf16_on_a_cpu_without_its_instructions(monkeypatch):
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    for has in (False, True):
+        monkeypatch.setattr(precision, "cpu_has_bf16", lambda: has)
+        assert precision.emulated_bf16(cpu, True) is (not has)
+        assert not precision.emulated_bf16(cpu, False) and not precision.emulated_bf16(cuda, True)
+
+
 
 @pytest.mark.skipif(not Path("/proc/cpuinfo").is_file(), reason="needs /proc/cpuinfo (Linux)")
 def test_cpu_bf16_probe_agrees_with_the_kernel():

@@ -86,7 +86,13 @@ def add_precision_arg(p) -> None:
     p.add_argument("--precision", choices=PRECISIONS, default="auto",
                    help="network arithmetic: auto (default: the run's bf16 on CUDA, fp32 on the CPU), fp32, or bf16 "
                         "(also on a CPU: 1.3-1.6x faster networks where the CPU has AVX512-BF16 or AMX, frames "
-                        "within a few levels of fp32; elsewhere bf16 is emulated, not measured)")
+                        "within a few levels of fp32; elsewhere bf16 is emulated and many times slower: "
+                        "'sim2real doctor' says which)")
+
+
+EMULATED_BF16 = ("note: this CPU has no bf16 instructions (AVX512-BF16 or AMX), so --precision bf16 is emulated, "
+                 "many times slower than fp32; leave it out for speed")
+"""What translate and evaluate print (to stderr) before running emulated bf16."""
 
 
 def add_compile_arg(p) -> None:

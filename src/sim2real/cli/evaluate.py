@@ -14,8 +14,10 @@ The second form evaluates a video made by any tool along the trajectory of the s
 from __future__ import annotations
 
 import argparse
+import sys
 
 from sim2real.cli.args import (
+    EMULATED_BF16,
     add_compile_arg,
     add_motion_args,
     add_precision_arg,
@@ -82,6 +84,8 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
+    from sim2real.engine.device import resolve_device
+    from sim2real.engine.precision import emulated_bf16
     from sim2real.errors import UserError
     from sim2real.inference.evaluate import EvalSettings, evaluate
 
@@ -109,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
         m = evaluate_frames(video, args.scenes[0], args.trajectory[0], args.real, args.out, settings=s,
                             fid_weights=args.fid_weights, device=args.device, progress=not args.no_progress)
     else:
+        if emulated_bf16(resolve_device(args.device), args.precision == "bf16"):
+            print(EMULATED_BF16, file=sys.stderr)
         m = evaluate(args.run, args.scenes, args.real, args.out, trajectories=args.trajectory, settings=s,
                      fid_weights=args.fid_weights, device=args.device, checkpoint=args.checkpoint,
                      precision=args.precision, compile=args.compile, progress=not args.no_progress)

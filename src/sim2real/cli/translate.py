@@ -11,8 +11,9 @@ Writes DIR/frames/000000.png ..., DIR/video.mp4, DIR/ground_truth/ and DIR/trans
 from __future__ import annotations
 
 import argparse
+import sys
 
-from sim2real.cli.args import add_compile_arg, add_precision_arg, positive_float, positive_int
+from sim2real.cli.args import EMULATED_BF16, add_compile_arg, add_precision_arg, positive_float, positive_int
 from sim2real.errors import UserError
 
 
@@ -37,6 +38,7 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
+    from sim2real.engine.precision import emulated_bf16
     from sim2real.inference.model import load_run
     from sim2real.inference.translate import trajectory_source, translate_sequence, views_source
 
@@ -45,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.views and not (args.scene and args.trajectory):
         raise UserError("give --scene SCENE and --trajectory FILE (or --views VIEWS_DIR)")
     model = load_run(args.run, args.device, args.checkpoint, args.precision, compile=args.compile)
+    if emulated_bf16(model.device, model.amp):
+        print(EMULATED_BF16, file=sys.stderr)
     source = views_source(model, args.views) if args.views else trajectory_source(model, args.scene, args.trajectory)
     m = translate_sequence(model, source, args.out, batch=args.batch, fps=args.fps, workers=args.workers,
                            progress=not args.no_progress)
