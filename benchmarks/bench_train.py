@@ -11,7 +11,8 @@ the process's peak memory (max RSS on CPU, max allocated on CUDA), for
 and their ratio (of the median step times; ``paired_ratio_median`` is the median over rounds of
 reference/ours step time, each round running the two back to back). On CUDA, ``ours`` also
 reports ``host_syncs``: the calls of its step that make the host wait for the GPU, by source line
-(:func:`host_syncs`). Both run on the same
+(:func:`host_syncs`) and ``device_busy``: the share of the step's wall time in which the GPU
+ran kernels or copies (:func:`device_busy`; well below 1, the GPU waits for the host). Both run on the same
 pre-generated batches (data loading is not timed; it
 runs in DataLoader workers during training). Timing runs both implementations in one process,
 alternating step by step, so that load from other processes hits both alike; peak memory comes
@@ -121,6 +122,41 @@ def host_syncs(run, steps: list[int]) -> dict:
             "sites": dict(sites.most_common(20))}
 
 
+def busy_share(intervals: list[tuple[float, float]], wall: float) -> float:
+    """The length of the union of ``intervals`` (start, end) over ``wall`` (same unit): overlapping
+    kernels (two streams) count once."""
+    busy, end = 0.0, float("-inf")
+    for a, b in sorted(intervals):
+        if b > end:
+            busy += b - max(a, end)
+            end = b
+    return busy / wall if wall > 0 else 0.0
+
+
+def device_busy(run, steps: list[int], device: str = "cuda") -> dict:
+    """``run(step)`` for ``steps`` under torch.profiler: the share of their wall time (from before the
+    first to after the last, synchronised) covered by the device's activity, kernels and copies on
+    CUDA (on the CPU the operators, for the tests). On a GPU a share well below 1 means the GPU
+    waits for the host (operator launches, syncs): fewer, fused kernels (``torch.compile``) or
+    CUDA graphs would pay there; near 1, the GPU's arithmetic bounds the step."""
+    import torch
+    from torch.autograd import DeviceType
+    from torch.profiler import ProfilerActivity, profile
+
+    cuda = device == "cuda"
+    with profile(activities=[ProfilerActivity.CUDA if cuda else ProfilerActivity.CPU]) as prof:
+        _sync(torch.device(device))
+        t0 = time.perf_counter()
+        for s in steps:
+            run(s)
+        _sync(torch.device(device))
+        wall = time.perf_counter() - t0
+    kind = DeviceType.CUDA if cuda else DeviceType.CPU
+    spans = [(e.time_range.start, e.time_range.end) for e in prof.events() if e.device_type == kind]
+    return {"busy_share": round(busy_share(spans, wall * 1e6), 3), "steps": len(steps),
+            "seconds_per_step": round(wall / max(len(steps), 1), 4)}
+
+
 def child(preset: str, impls: list[str], iters: int, base: Path, device_name: str) -> dict:
     """Time ``impls`` on the same batches, alternating step by step (so that a varying load
     from other processes hits both alike); the peak memory is meaningful for one impl only."""
@@ -163,8 +199,11 @@ def child(preset: str, impls: list[str], iters: int, base: Path, device_name: st
                         "timed_iterations": len(timed)}
     if "ours" in runners and iters:
         device, run = runners["ours"]
-        result["host_syncs"] = host_syncs(run, list(range(WARMUP[preset], n))) if device.type == "cuda" else {
+        timed = list(range(WARMUP[preset], n))
+        result["host_syncs"] = host_syncs(run, timed) if device.type == "cuda" else {
             "reason": "counted on CUDA only (torch.cuda.set_sync_debug_mode)"}
+        result["device_busy"] = device_busy(run, timed) if device.type == "cuda" else {
+            "reason": "measured on CUDA only (torch.profiler's CUDA activity)"}
     if {"ours", "reference"} <= set(times) and len(times["ours"]) > WARMUP[preset]:
         # the two steps of one round ran back to back: their ratio cancels slow drifts of the load
         pairs = [r / o for o, r in zip(times["ours"][WARMUP[preset]:], times["reference"][WARMUP[preset]:])]
@@ -260,6 +299,7 @@ def main() -> None:
                 entry["ours"]["iterations_per_s"] / entry["reference"]["iterations_per_s"], 2)
             entry["paired_ratio_median"] = both["paired_ratio_median"]
             entry["ours"]["host_syncs"] = both["host_syncs"]
+            entry["ours"]["device_busy"] = both["device_busy"]
             result["presets"][preset] = entry
             print(json.dumps({preset: entry}), file=sys.stderr)
         result["projection"] = projection_ms(base)

@@ -5,6 +5,7 @@ renamed import before device time is spent on it."""
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -62,6 +63,26 @@ def test_host_syncs_are_counted_by_source_line(monkeypatch):
     assert modes == ["warn", 0]
     assert got == {"per_step": 3.0, "steps": 2,
                    "sites": {f"test_benchmark_scripts.py:{a}": 4, f"test_benchmark_scripts.py:{a + 1}": 2}}
+
+
+def test_device_busy_share_is_the_union_of_activity_over_the_wall_time():
+    """bench_train's GPU-busy share: overlapping spans count once (by hand: [0, 20] and [30, 40]
+    of 50); and its profiler wiring, run on the CPU's operators: a step that mostly sleeps is
+    mostly idle, one that multiplies matrices back to back mostly busy."""
+    import torch
+
+    sys.path.insert(0, str(BENCH))
+    try:
+        import bench_train
+    finally:
+        sys.path.remove(str(BENCH))
+    assert bench_train.busy_share([(5, 20), (0, 10), (30, 40), (32, 35)], 50) == 30 / 50
+    assert bench_train.busy_share([], 50) == 0.0
+    a = torch.randn(256, 256)
+    idle = bench_train.device_busy(lambda s: (time.sleep(0.1), a @ a), [0, 1], device="cpu")
+    busy = bench_train.device_busy(lambda s: [a @ a for _ in range(200)], [0, 1], device="cpu")
+    assert idle["steps"] == 2 and idle["seconds_per_step"] >= 0.1
+    assert idle["busy_share"] < 0.3 < 0.6 < busy["busy_share"] <= 1.0, (idle, busy)
 
 
 def test_network_flops_are_counted_layer_by_layer():
