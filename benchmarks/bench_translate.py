@@ -4,7 +4,8 @@ For each preset it builds a run at step 0 (untrained weights: the speed does not
 values) on a procedural scene, then measures
 
 * ``model_fps``: :meth:`TrainedModel.translate_gbuffers` alone on pre-rendered G-buffers
-  (texture projection + reference rendering + E_A/G_B), batch ``--batch``, median of
+  (texture projection + reference rendering + E_A/G_B), batch ``--batch`` (8 unless given, on
+  every device; ``sim2real translate`` sends 2 on a CPU), median of
   ``--repeats`` timed passes over ``--frames`` frames after one warm-up pass;
 * ``end_to_end_fps`` (``--end-to-end``): :func:`translate_sequence` over a trajectory of
   ``--frames`` frames: ray casting, translation, PNG frames, H.264 video and the ground-truth

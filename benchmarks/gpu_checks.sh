@@ -17,8 +17,9 @@
 #   bash benchmarks/gpu_checks.sh checks    there (with .whl), within 10 min on one GPU: sim2real doctor, CUDA tests, a
 #                                           short paper-preset training run (it/s, data-wait share from
 #                                           metrics.jsonl, peak GPU memory), the training step, its
-#                                           peak memory and its host syncs (bench_train), translation frames/s, the data
-#                                           path per stage, translation with --compile (while time
+#                                           peak memory, host syncs and GPU-busy share (bench_train),
+#                                           translation frames/s and the networks' share of the
+#                                           matmul rate, the data path per stage, translation with --compile (while time
 #                                           is left), and a 20-step DDP run when there are >1
 #                                           GPUs; CONV_SHARE=1 adds the conv share of the bf16 peak
 #   bash benchmarks/gpu_checks.sh demo      there (with .whl): `sim2real demo` on the paper preset,

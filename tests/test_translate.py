@@ -70,8 +70,15 @@ def test_translate_trajectory(inputs, tmp_path, capsys):
     assert not np.array_equal(frames[0], frames[1])
     manifest = json.loads((out / "translate.json").read_text())
     assert manifest["frames"] == 5 and manifest["scene"] == f"procedural_{SCENE_SEED:04d}"
+    assert manifest["batch"] == 3  # as given
     assert not (out / ".gbuffers").exists()  # scratch removed
     assert not list(tmp_path.glob(".out.partial-*"))  # written beside it, then renamed into place
+
+
+def test_default_batch_by_device():
+    from sim2real.inference.model import translate_batch
+
+    assert translate_batch(torch.device("cuda")) == 8 and translate_batch(torch.device("cpu")) == 2
 
 
 def test_model_api_is_time_independent(inputs):
@@ -193,7 +200,8 @@ def test_precision_choice_on_cpu(inputs, tmp_path, capsys, monkeypatch):
     code, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
                     "--out", out, "--device", "cpu", "--precision", "bf16", "--no-progress")
     assert code == 0 and one_line(err).startswith("note: this CPU has no bf16 instructions"), err
-    assert json.loads((out / "translate.json").read_text())["amp_bf16"] is True
+    manifest = json.loads((out / "translate.json").read_text())
+    assert manifest["amp_bf16"] is True and manifest["batch"] == 2  # no --batch: the CPU's default
     with pytest.raises(SystemExit) as e:  # argparse refuses it before anything loads
         main([str(a) for a in ("translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
                                "--out", tmp_path / "fp16", "--precision", "fp16")])

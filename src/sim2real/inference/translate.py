@@ -23,7 +23,7 @@ from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, deferred_fsync, fsync_files, prepare_output_dir
 from sim2real.inference.export import GroundTruthWriter
 from sim2real.inference.frames import chunked, iter_gbuffers, iter_view_files
-from sim2real.inference.model import DEFAULT_BATCH, TrainedModel
+from sim2real.inference.model import TrainedModel, translate_batch
 from sim2real.inference.video import BackgroundFrameWriter, _rate
 from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.scene import Scene
@@ -84,7 +84,7 @@ def views_source(model: TrainedModel, views_dir: str | os.PathLike) -> Translate
                            description={"kind": "views", "views_dir": str(Path(views_dir).resolve())})
 
 
-def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | os.PathLike, batch: int = DEFAULT_BATCH,
+def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | os.PathLike, batch: int | None = None,
                        fps: float | None = None, workers: int | None = None, progress: bool = True) -> dict:
     """Translate every frame of ``source`` into ``out`` (new or empty) and export its ground truth.
 
@@ -100,8 +100,10 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
 
     Everything is written into a hidden sibling folder without a flush per file; when complete,
     all its files are flushed to disk at once and the folder is renamed to ``out``: a reader sees
-    no ``out`` content or all of it. Returns the manifest.
+    no ``out`` content or all of it. Returns the manifest. ``batch``: frames per network call
+    (default :func:`~sim2real.inference.model.translate_batch`, by the model's device).
     """
+    batch = translate_batch(model.device) if batch is None else batch
     if batch < 1:
         raise UserError(f"--batch must be >= 1, got {batch}")
     fps = float(source.fps if fps is None else fps)
@@ -166,6 +168,7 @@ def _translate_into(model: TrainedModel, source: TranslateSource, out: Path, bat
         "scene": source.scene_name,
         "source": source.description,
         "frames": count,
+        "batch": batch,
         "fps": fps,
         "height": h,
         "width": w,
