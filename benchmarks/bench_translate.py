@@ -132,8 +132,9 @@ def _matmul_gflops(device: str, dtype: torch.dtype, repeats: int = 10) -> float:
 
     n, cap = 512, 8192 if device == "cuda" else 2048
     warm = time.perf_counter() + 1.0  # the first second after start-up runs slower (measured 124 against 160-180)
+    a = torch.randn(512, 512, device=device)
     while time.perf_counter() < warm:
-        seconds(*(torch.randn(512, 512, device=device) for _ in range(2)))
+        seconds(a, a)
     while True:
         a, b = (torch.randn(n, n, device=device).to(dtype) for _ in range(2))
         seconds(a, b)  # warms up

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from sim2real.data.pairs import pair_transfer_bytes
+from sim2real.data.pairs import sample_transfer_bytes
 from sim2real.data.shm import HEADROOM, MiB, free_shared_memory, loader_workers_for_shm
 from sim2real.data.viewpool import bytes_per_view
 from sim2real.engine.device import resolve_device
@@ -93,7 +93,7 @@ def check_shared_memory(free: int | None = None) -> Check:
     free = free_shared_memory() if free is None else free
     workers = loader_workers(-1)
     cfg = preset("paper").data
-    sample = pair_transfer_bytes(cfg.height, cfg.width)
+    sample = sample_transfer_bytes(cfg.height, cfg.width)
     per_worker = PREFETCH * sample
     if free is None:
         return Check("shm", "ok", "no /dev/shm on this system (the loader uses the platform's own shared memory)",

@@ -68,11 +68,11 @@ VIEW_BYTES_PER_PIXEL = 26
 object ids int16 (2), points fp32 at most (12), and a_ref fp16 (6) or the distance fp16 (2)."""
 
 
-def pair_transfer_bytes(height: int, width: int, pairs: bool = True) -> int:
-    """Upper bound of one training sample's bytes in transit (shared memory, pinned copy): the
-    views (one, or a pair), a pair's correspondences (uv fp32 8, visible 1 per pixel) and the
-    uint8 real crop (3)."""
-    per_px = VIEW_BYTES_PER_PIXEL * (2 if pairs else 1) + (9 if pairs else 0) + 3
+def sample_transfer_bytes(height: int, width: int, views: int = 2, crops: int = 1) -> int:
+    """Upper bound of one training sample's bytes in transit (shared memory, pinned copy): its
+    ``views``, the correspondences between consecutive views (uv fp32 8, visible 1 per pixel) and
+    its ``crops`` uint8 real crops (3)."""
+    per_px = VIEW_BYTES_PER_PIXEL * views + 9 * (views - 1) + 3 * crops
     return per_px * height * width + 4096
 
 
@@ -110,8 +110,8 @@ class TrainPairs(torch.utils.data.Dataset):
         has time while the CPU step runs) instead of shipping what it is made of."""
 
     def transfer_bytes(self) -> int:
-        """Upper bound of one sample's bytes in transit (:func:`pair_transfer_bytes`)."""
-        return pair_transfer_bytes(self.cfg.height, self.cfg.width, self.pairs)
+        """Upper bound of one sample's bytes in transit (:func:`sample_transfer_bytes`)."""
+        return sample_transfer_bytes(self.cfg.height, self.cfg.width, views=2 if self.pairs else 1)
 
     def view_keys(self, g: GBuffer, tag: str) -> dict[str, torch.Tensor]:
         """One view's tensors: with a_ref (:attr:`a_ref_in_worker`) or with its inputs."""

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from sim2real.data.pairs import VIEW_BYTES_PER_PIXEL, TrainPairs
+from sim2real.data.pairs import TrainPairs, sample_transfer_bytes
 from sim2real.data.real import RealSequences
 from sim2real.data.tensors import compact
 from sim2real.render.warp import correspondences
@@ -47,8 +47,7 @@ class TrainTriplets(TrainPairs):
     def transfer_bytes(self) -> int:
         """Upper bound of one sample's bytes in transit: three views, two correspondences, three
         real crops (see :meth:`TrainPairs.transfer_bytes`)."""
-        per_px = FRAMES * VIEW_BYTES_PER_PIXEL + (FRAMES - 1) * 9 + FRAMES * 3
-        return per_px * self.cfg.height * self.cfg.width + 4096
+        return sample_transfer_bytes(self.cfg.height, self.cfg.width, views=FRAMES, crops=FRAMES)
 
     def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
         rng = self.rng(step)
