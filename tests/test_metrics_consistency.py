@@ -15,11 +15,8 @@ from sim2real.metrics.consistency import (
     orb_accuracy,
     orb_curve,
     orb_matches,
-    revisit_of,
-    revisit_orb,
-    revisit_pairs,
-    view_of_extended,
 )
+from sim2real.metrics.revisit import revisit_of, revisit_orb, revisit_pairs, view_of_extended
 
 H, W = 128, 192
 S = 0.5  # mm per pixel of the synthetic fronto-parallel plane

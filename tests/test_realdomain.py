@@ -16,7 +16,8 @@ from PIL import Image
 
 from sim2real.errors import UserError
 from sim2real.realdomain import Appearance, RenderOptions, SceneMaterial, derive_seed, make_real_domain, render_frame
-from sim2real.realdomain.solid_texture import CellField, Noise, VesselTree, surface_samples
+from sim2real.realdomain.solid_texture import CellField, Noise, surface_samples
+from sim2real.realdomain.vessel_tree import VesselTree
 from sim2real.render.raycast import RayCaster
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.render.warp import correspondences, warp_image

@@ -8,11 +8,11 @@ dies, even by SIGKILL, so a lock left by a killed run blocks nobody: the PID wri
 file is only read while the lock is held.
 
 Under DDP only rank 0 writes to the run folder, so only rank 0 takes the lock
-(engine/trainer.py); the others wait for its verdict. A forked DataLoader worker inherits the
-descriptor: :func:`close_inherited` closes the child's copy (never ``LOCK_UN``, which would
-release the parent's lock). Where ``fcntl`` is missing (Windows) the lock is a no-op; where the
-file system refuses locks (some network file systems) a warning is printed and the run goes on
-unlocked.
+(:func:`take_run_folder`, called by engine/trainer.py); the others wait for its verdict. A
+forked DataLoader worker inherits the descriptor: :func:`close_inherited` closes the child's
+copy (never ``LOCK_UN``, which would release the parent's lock). Where ``fcntl`` is missing
+(Windows) the lock is a no-op; where the file system refuses locks (some network file systems)
+a warning is printed and the run goes on unlocked.
 """
 
 from __future__ import annotations
@@ -29,7 +29,10 @@ try:
 except ImportError:  # Windows: not a target, but keep the package importable
     fcntl = None
 
+from sim2real.data.real import INDEX as REAL_INDEX
+from sim2real.engine.checkpoint import stamp
 from sim2real.errors import UserError
+from sim2real.fileio import prepare_output_dir
 
 LOCK_NAME = "train.lock"
 _HELD: "weakref.WeakSet[RunLock]" = weakref.WeakSet()  # locks this process holds (see close_inherited)
@@ -123,3 +126,36 @@ def close_inherited() -> None:
             except OSError:
                 pass
     _HELD.clear()
+
+
+def remove_if_only_lock(out: Path) -> None:
+    """Remove a run folder that holds nothing but its lock file (a fresh run that never started)
+    and the index of its real folder."""
+    try:
+        if {p.name for p in out.iterdir()} <= {LOCK_NAME, REAL_INDEX}:
+            (out / REAL_INDEX).unlink(missing_ok=True)
+            (out / LOCK_NAME).unlink(missing_ok=True)
+            out.rmdir()
+    except OSError:
+        pass
+
+
+def take_run_folder(out: Path, lock: RunLock, state: dict | None, resume) -> None:
+    """Lock the run folder ``out`` with ``lock`` (rank 0). A fresh run (``state`` None) needs it
+    empty (checked before the lock is created in it, and again under the lock); a resumed run
+    needs its checkpoint ``resume`` unchanged since ``state`` was read from it (another process
+    may have written it in between)."""
+    if state is None:
+        prepare_output_dir(out)
+    else:  # resuming into another folder (Trainer(resume=...) from code) starts it
+        out.mkdir(parents=True, exist_ok=True)
+    lock.acquire()
+    try:
+        if state is None:
+            prepare_output_dir(out, allowed=(LOCK_NAME,))
+        elif resume is not None and stamp(resume) != state.get("stamp"):
+            raise UserError(f"checkpoint {resume} was rewritten by another process while this one started; "
+                            "run the command again")
+    except BaseException:
+        lock.release()
+        raise

@@ -21,9 +21,8 @@ from sim2real.metrics.consistency import (
     farneback_flow,
     flow_errors,
     orb_curve,
-    revisit_of,
-    revisit_orb,
 )
+from sim2real.metrics.revisit import revisit_of, revisit_orb
 
 ROWS = ("model", "ceiling", "floor", "a_ref")
 MIN_GAP = 0.05

@@ -10,7 +10,6 @@ of plain inputs, so that each can be run and tested alone.
 from __future__ import annotations
 
 import contextlib
-import re
 import sys
 import time
 import warnings
@@ -21,14 +20,14 @@ from typing import Callable, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from sim2real.fileio import atomic_write_image, atomic_write_json
-from sim2real.grid import tile
+from sim2real.fileio import atomic_write_json
 from sim2real.inference.dice import class_dice, dice_of, segmenters  # torch-heavy training code, only with labels
 from sim2real.inference.frames import chunked, iter_gbuffers
 from sim2real.inference.jobs import Jobs, results
 from sim2real.inference.realimages import fit_image, to_nchw
 from sim2real.inference.report import write_report
 from sim2real.inference.rows import PAPER_KS, sequence_row
+from sim2real.inference.samples import safe_name, write_samples
 from sim2real.inference.video import write_video
 from sim2real.metrics.consistency import orb_settings_for
 from sim2real.metrics.odometry import odometry, odometry_orb
@@ -392,42 +391,6 @@ def report_stage(metrics: dict, out: Path, vs: ViewSet, real_imgs, seq_samples: 
     write_report(metrics, out, samples)
     atomic_write_json(out / "metrics.json", metrics)
     return metrics
-
-
-def safe_name(name: str) -> str:
-    return re.sub(r"[^0-9A-Za-z_.-]", "_", name)
-
-
-def _sample_indices(T: int) -> list[int]:
-    return sorted({0, T // 3, (2 * T) // 3, T - 1})
-
-
-def _grid(rows: list[list[np.ndarray]], gap: int = 2) -> np.ndarray:
-    """Tile uint8 RGB images (rows of columns) with white gaps, each fitted to the first one's size."""
-    h, w = rows[0][0].shape[:2]
-    return tile([[im if im.shape[:2] == (h, w) else fit_image(im, h, w) for im in row] for row in rows], gap)
-
-
-def write_samples(out: Path, views: dict, real_imgs, seq_samples: dict, s) -> dict:
-    """PNG sample grids under ``out/samples``; returns {title: relative path}."""
-    samples: dict[str, str] = {}
-    order = [r for r in ("a_ref", "model", "ceiling", "floor") if r in views]
-    gen = views["model"]
-    n = min(s.samples, len(gen))
-    if n:
-        rng = np.random.default_rng(s.seed)
-        idx = sorted(rng.choice(len(gen), n, replace=False))
-        atomic_write_image(out / "samples" / "views.png", _grid([[views[r][i] for r in order] for i in idx]))
-        samples[f"Random views, one per row; columns: {', '.join(order)}"] = "samples/views.png"
-    if real_imgs:
-        atomic_write_image(out / "samples" / "real.png", _grid([real_imgs[: min(4, len(real_imgs))]]))
-        samples["Real images (resized and centre-cropped as for FID)"] = "samples/real.png"
-    for name, frames in seq_samples.items():
-        idx = _sample_indices(len(frames["model"]))
-        rel = f"samples/trajectory_{safe_name(name)}.png"
-        atomic_write_image(out / rel, _grid([[frames[r][i] for i in idx] for r in order]))
-        samples[f"Trajectory of '{name}', frames {', '.join(str(i) for i in idx)}; rows: {', '.join(order)}"] = rel
-    return samples
 
 
 @contextlib.contextmanager

@@ -3,7 +3,8 @@
 - :mod:`.inception`: the FID Inception-v3 network, weights from a local file only.
 - :mod:`.realism`: FID/KID via torchmetrics, Dice, the labelled ``proxy_*`` stand-in.
 - :mod:`.segmenter`: the small liver U-Net behind the Dice metric.
-- :mod:`.consistency`: OF error, ORB match accuracy, ORB-k curves, revisit protocol.
+- :mod:`.consistency`: OF error, ORB match accuracy, ORB-k curves.
+- :mod:`.revisit`: the revisit protocol (OF and ORB-k on views seen again on the way back).
 
 Torch-heavy submodules are imported here too; import a submodule directly to avoid that.
 """
@@ -19,10 +20,6 @@ from sim2real.metrics.consistency import (
     orb_accuracy,
     orb_curve,
     orb_matches,
-    revisit_of,
-    revisit_orb,
-    revisit_pairs,
-    view_of_extended,
 )
 from sim2real.metrics.inception import (
     FID_WEIGHTS_ENV,
@@ -40,6 +37,7 @@ from sim2real.metrics.realism import (
     fid_weights_status,
     proxy_colour_texture_distance,
 )
+from sim2real.metrics.revisit import revisit_of, revisit_orb, revisit_pairs, view_of_extended
 from sim2real.metrics.segmenter import LiverUNet, predict, train_segmenter
 
 __all__ = [

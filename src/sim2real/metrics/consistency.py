@@ -1,4 +1,5 @@
-"""Temporal-consistency metrics (paper Sec. "Metrics"): OF error, ORB-k accuracy, revisit protocol.
+"""Temporal-consistency metrics (paper Sec. "Metrics"): OF error and ORB-k accuracy (the revisit
+protocol: :mod:`sim2real.metrics.revisit`).
 
 Conventions
 -----------
@@ -200,7 +201,7 @@ def of_error_sequence(frames: Sequence, flows_gt: Sequence, valids: Sequence | N
 
 
 # --------------------------------------------------------------------------- ORB
-class _OrbFeatures:
+class OrbFeatures:
     """Keypoints (M, 2) float64 in OpenCV coordinates and descriptors (or None) of one frame."""
 
     __slots__ = ("pts", "des", "shape")
@@ -214,7 +215,9 @@ class _OrbFeatures:
         self.des = des if des is not None and len(des) else None
 
 
-def _match(fa: _OrbFeatures, fb: _OrbFeatures) -> tuple[np.ndarray, np.ndarray]:
+def match_features(fa: OrbFeatures, fb: OrbFeatures) -> tuple[np.ndarray, np.ndarray]:
+    """Cross-checked brute-force Hamming matches of two frames' features -> (pts_a, pts_b), each
+    (M, 2) in OpenCV keypoint coordinates (M = 0 when either frame has no descriptors)."""
     if fa.des is None or fb.des is None:
         return np.zeros((0, 2)), np.zeros((0, 2))
     matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
@@ -236,7 +239,7 @@ def orb_matches(frame_a, frame_b, n_features: "int | OrbSettings" = 1000) -> tup
     float64 ``(x, y)`` in OpenCV keypoint coordinates (pixel centres at integers). A frame
     without descriptors (e.g. a smooth image) gives M = 0.
     """
-    return _match(_OrbFeatures(frame_a, n_features), _OrbFeatures(frame_b, n_features))
+    return match_features(OrbFeatures(frame_a, n_features), OrbFeatures(frame_b, n_features))
 
 
 def keypoint_pixels(pts: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -282,7 +285,7 @@ def orb_accuracy(frame_a, frame_b, points_a, points_b, valid_a, valid_b, thresho
     return _summary(int(ok.sum()), len(ok))
 
 
-def _pairs_summary(k: int, per_pair: list[tuple[int, int]]) -> dict:
+def pairs_summary(k: int, per_pair: list[tuple[int, int]]) -> dict:
     correct = sum(c for c, _ in per_pair)
     total = sum(t for _, t in per_pair)
     n = len(per_pair)
@@ -314,98 +317,13 @@ def orb_curve(frames: Sequence, points: Sequence, valids: Sequence, ks: Iterable
     ks = [int(k) for k in ks]
     if any(k < 1 for k in ks):
         raise ValueError(f"ks must be >= 1, got {ks}")
-    feats = [_OrbFeatures(f, n_features) for f in frames]
+    feats = [OrbFeatures(f, n_features) for f in frames]
     out = {}
     for k in ks:
         per = []
         for t in range(T - k):
-            pa, pb = _match(feats[t], feats[t + k])
+            pa, pb = match_features(feats[t], feats[t + k])
             ok = match_correctness(pa, pb, points[t], points[t + k], valids[t], valids[t + k], threshold_mm)
             per.append((int(ok.sum()), len(ok)))
-        out[k] = _pairs_summary(k, per)
+        out[k] = pairs_summary(k, per)
     return out
-
-
-# --------------------------------------------------------------------------- revisit protocol
-def view_of_extended(e: int, T: int) -> int:
-    """0-based view shown at 0-based position ``e`` of the extended sequence 1..T, T..1."""
-    if not 0 <= e < 2 * T:
-        raise ValueError(f"extended index {e} outside [0, {2 * T})")
-    return e if e < T else 2 * T - 1 - e
-
-
-def revisit_pairs(T: int, k: int) -> list[tuple[int, int]]:
-    """Pairs (i, j) of 0-based positions in the extended sequence compared by the revisit protocol.
-
-    The paper extends 1..T to 1, ..., T, T, ..., 1 (1-based positions s = 1..2T; position s > T
-    shows view 2T + 1 - s) and compares forward frame t with position 2T - t (ORB-1 and OF),
-    2T - t - 4 (ORB-5) and 2T - t - 9 (ORB-10): in general 2T - t - (k - 1), which shows view
-    t + k on the way back. In 0-based terms (i = t - 1):
-
-        i = 0, ..., T - 1 - k   and   j = 2T - 1 - i - k,   with view_of_extended(j) = i + k.
-
-    Returns an empty list when k >= T.
-    """
-    if T < 1 or k < 1:
-        raise ValueError(f"need T >= 1 and k >= 1, got T={T}, k={k}")
-    return [(i, 2 * T - 1 - i - k) for i in range(max(T - k, 0))]
-
-
-def _per_view(seq, T: int, name: str):
-    """Index function: ``seq`` given per view (length T) or per extended frame (length 2T)."""
-    n = len(seq)
-    if n == T:
-        return lambda e: seq[view_of_extended(e, T)]
-    if n == 2 * T:
-        return lambda e: seq[e]
-    raise ValueError(f"{name} must have length T={T} (per view) or 2T={2 * T} (per extended frame), got {n}")
-
-
-def revisit_orb(frames_ext: Sequence, points: Sequence, valids: Sequence, k: int, threshold_mm: float = 1.0,
-                n_features: "int | OrbSettings" = 1000) -> dict:
-    """ORB-k under the revisit protocol ("OF-UNIT (revisit)").
-
-    ``frames_ext``: the 2T translated frames of the extended sequence (forward then backward).
-    ``points``/``valids``: per view (length T) or per extended frame (length 2T). Compares
-    ``frames_ext[i]`` with ``frames_ext[j]`` for (i, j) in :func:`revisit_pairs` ``(T, k)``; the
-    3D points are those of views i and i + k. Same summary as one entry of :func:`orb_curve`.
-    """
-    n = len(frames_ext)
-    if n % 2 or n == 0:
-        raise ValueError(f"frames_ext must have an even, positive length 2T, got {n}")
-    T = n // 2
-    P = _per_view(points, T, "points")
-    V = _per_view(valids, T, "valids")
-    feats: dict[int, _OrbFeatures] = {}
-
-    def f(e: int) -> _OrbFeatures:
-        if e not in feats:
-            feats[e] = _OrbFeatures(frames_ext[e], n_features)
-        return feats[e]
-
-    per = []
-    for i, j in revisit_pairs(T, k):
-        pa, pb = _match(f(i), f(j))
-        ok = match_correctness(pa, pb, P(i), P(j), V(i), V(j), threshold_mm)
-        per.append((int(ok.sum()), len(ok)))
-    return _pairs_summary(k, per)
-
-
-def revisit_of(frames_ext: Sequence, flows_gt: Sequence, valids: Sequence | None = None) -> dict:
-    """OF error under the revisit protocol.
-
-    ``frames_ext``: 2T frames; ``flows_gt[i]``: ground-truth flow from view i to view i + 1
-    (T - 1 arrays), ``valids[i]`` its mask. Pair i compares ``frames_ext[i]`` (view i) with
-    ``frames_ext[2T - 2 - i]`` (view i + 1 on the way back), see :func:`revisit_pairs` with k = 1.
-    Returns ``{"of_error": mean over pairs, "per_pair": [...], "pairs": n}``.
-    """
-    n = len(frames_ext)
-    if n % 2 or n == 0:
-        raise ValueError(f"frames_ext must have an even, positive length 2T, got {n}")
-    T = n // 2
-    if len(flows_gt) != T - 1 or (valids is not None and len(valids) != T - 1):
-        raise ValueError(f"need T - 1 = {T - 1} flows (and valids), got {len(flows_gt)}")
-    per = [of_error(flows_gt[i], frames_ext[i], frames_ext[j], None if valids is None else valids[i])
-           for i, j in revisit_pairs(T, 1)]
-    vals = [e for e in per if e is not None]
-    return {"of_error": float(np.mean(vals)) if vals else None, "per_pair": per, "pairs": len(vals)}

@@ -24,7 +24,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from sim2real.metrics.consistency import OrbSettings, _match, _OrbFeatures
+from sim2real.metrics.consistency import OrbFeatures, OrbSettings, match_features
 
 SUCCESS_DEG = 5.0
 MIN_INLIERS = 15
@@ -61,10 +61,10 @@ def direction_error_deg(t_est: np.ndarray, t_gt: np.ndarray) -> float | None:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
-def relative_pose(fa: _OrbFeatures, fb: _OrbFeatures, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, int] | None:
+def relative_pose(fa: OrbFeatures, fb: OrbFeatures, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, int] | None:
     """(R, t, inliers) from two frames' ORB features, or None when no pose is found. Keypoints
     are moved by +0.5 px into the project's pixel convention (centres at col + 0.5, as ``K``)."""
-    pa, pb = _match(fa, fb)
+    pa, pb = match_features(fa, fb)
     if len(pa) < 5:
         return None
     pa, pb = pa + 0.5, pb + 0.5
@@ -94,11 +94,11 @@ def odometry(frames: Sequence[np.ndarray], world_to_camera: Sequence[np.ndarray]
     if len(frames) != len(world_to_camera):
         raise ValueError(f"{len(frames)} frames but {len(world_to_camera)} poses")
     K = np.asarray(K, np.float64)
-    feats: dict[int, _OrbFeatures] = {}
+    feats: dict[int, OrbFeatures] = {}
 
-    def feat(t: int) -> _OrbFeatures:
+    def feat(t: int) -> OrbFeatures:
         if t not in feats:
-            feats[t] = _OrbFeatures(frames[t], orb)
+            feats[t] = OrbFeatures(frames[t], orb)
         return feats[t]
 
     out = {}

@@ -6,7 +6,7 @@ object's local frame (``point - object bounding-box minimum``, mm; see
 
 * abdominal wall: pinkish white, milky patches and a reddish blush, faint muscle striation
   showing through, branching red vessel trees whose calibres taper from trunks to twigs
-  (:class:`~sim2real.realdomain.solid_texture.VesselTree`) and a faint capillary mesh (edges of
+  (:class:`~sim2real.realdomain.vessel_tree.VesselTree`) and a faint capillary mesh (edges of
   domain-warped Voronoi cells); wrapped diffuse for a translucent look;
 * liver: dark red-brown, glossy, fine mottling and a faint lobular (cellular) pattern;
 * fat (and stomach, which the procedural scenes put in the fat object): yellow-orange lobules of
@@ -32,12 +32,12 @@ from sim2real.realdomain.appearance import Appearance, derive_seed, srgb_to_line
 from sim2real.realdomain.solid_texture import (
     CellField,
     Noise,
-    VesselTree,
     hash_unit,
     line_profile,
     smoothstep,
     surface_samples,
 )
+from sim2real.realdomain.vessel_tree import VesselTree
 
 
 def _stable(text: str) -> int:
