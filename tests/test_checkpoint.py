@@ -11,8 +11,9 @@ import pytest
 import torch
 from train_data import child_env, real_dir, scene_dir, tiny_config
 
-from sim2real.engine.checkpoint import load_checkpoint, save_checkpoint
+from sim2real.engine.checkpoint import load_checkpoint, mismatch, read_torch_file, save_checkpoint
 from sim2real.engine.trainer import Trainer
+from sim2real.errors import UserError
 
 
 
@@ -78,6 +79,44 @@ def test_checkpoint_write_is_atomic(tmp_path):
     save_checkpoint(path, {**state, "step": 2})
     assert load_checkpoint(path)["step"] == 2
     assert os.listdir(path.parent) == ["last.pt"]  # no temporary left behind
+
+
+def _load_error(module: torch.nn.Module, state: dict) -> RuntimeError:
+    with pytest.raises(RuntimeError) as e:
+        module.load_state_dict(state)
+    return e.value
+
+
+def test_mismatch_names_the_first_keys_and_the_shapes_in_one_line():
+    lin = torch.nn.Linear(3, 2)  # weight (2, 3), bias (2,)
+    e = _load_error(lin, {"weight": torch.zeros(3, 3), "bias": torch.zeros(2), "extra": torch.zeros(1)})
+    assert mismatch(e) == "unexpected extra; weight has shape [3, 3] in the file, [2, 3] here"
+    seq = torch.nn.Sequential(*[torch.nn.Linear(1, 1) for _ in range(3)])  # 6 keys: 0.weight ... 2.bias
+    e = _load_error(seq, {"0.weight": torch.zeros(1, 1)})
+    assert mismatch(e) == "missing 0.bias, 1.weight, 1.bias, ... (5 in all)"
+    assert mismatch(KeyError("gen")) == "'gen'"  # any other error: its first line
+
+
+def test_read_torch_file_says_in_one_line_why_a_file_cannot_be_read(tmp_path):
+    good = {"w": torch.arange(3)}
+    torch.save(good, tmp_path / "zip.pt")
+    torch.save(good, tmp_path / "legacy.pt", _use_new_zipfile_serialization=False)  # torch < 1.6's format
+    for name in ("zip.pt", "legacy.pt"):
+        assert torch.equal(read_torch_file(tmp_path / name, name, "weights")["w"], good["w"])
+    blob = (tmp_path / "zip.pt").read_bytes()
+    (tmp_path / "cut.pt").write_bytes(blob[: len(blob) // 2])
+    (tmp_path / "text.pt").write_text("not a checkpoint\n")
+    torch.save({"w": torch.arange(3), "when": __import__("datetime").date(2026, 1, 1)}, tmp_path / "object.pt")
+    expected = {"cut.pt": "a damaged or incomplete archive (a truncated copy?)",
+                "text.pt": "not a file written by torch.save",
+                "object.pt": "it holds objects other than tensors and plain containers, which are not loaded (for safety)"}
+    for name, why in expected.items():
+        with pytest.raises(UserError) as e:
+            read_torch_file(tmp_path / name, tmp_path / name, "weights")
+        assert str(e.value) == f"cannot read weights {tmp_path / name}: {why}"
+    with pytest.raises(UserError) as e:
+        load_checkpoint(tmp_path / "text.pt")
+    assert str(e.value) == f"cannot read checkpoint {tmp_path / 'text.pt'}: not a file written by torch.save"
 
 
 @pytest.mark.parametrize("method", ["ours", "ssim_munit"])  # the paper's method and a baseline

@@ -1,9 +1,11 @@
-"""read_json: the parsed object of a good file, one UserError line naming the file otherwise."""
+"""read_json and read_yaml: the parsed object of a good file, one UserError line naming the file
+otherwise; reason: a library's error in a few words."""
 
 import pytest
 
+from sim2real.config import read_yaml
 from sim2real.data.views import list_views
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 from sim2real.fileio import read_json, read_json_or_none
 from sim2real.scene.scene import Scene
 
@@ -74,3 +76,22 @@ def test_call_sites_name_their_file(tmp_path):
     (views / "views.json").write_text("[]")
     with pytest.raises(UserError, match=r"^cannot read views manifest .*views\.json: expected a JSON object, found list$"):
         list_views(views)
+
+
+def test_reason_keeps_the_words_and_drops_numbers_and_repeated_names():
+    assert reason(FileNotFoundError(2, "No such file or directory", "/x/y.txt")) == "No such file or directory"
+    assert reason(ValueError("first line\nsecond line")) == "first line"
+    assert reason(ValueError()) == "ValueError"
+
+
+def test_yaml_errors_say_where_in_one_line(tmp_path):
+    f = tmp_path / "c.yaml"
+    f.write_text("data:\n  height: 64\n")
+    assert read_yaml(f) == {"data": {"height": 64}}
+    f.write_text("a: 1\n  b: 2\n")  # the colon of line 2 is its 4th character
+    with pytest.raises(UserError) as e:
+        read_yaml(f)
+    assert _one_line(e) == f"cannot read config {f}: not valid YAML (line 2, column 4: mapping values are not allowed here)"
+    with pytest.raises(UserError) as e:
+        read_yaml(tmp_path / "none.yaml")
+    assert _one_line(e) == f"cannot read config {tmp_path / 'none.yaml'}: No such file or directory"

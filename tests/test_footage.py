@@ -260,6 +260,7 @@ def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, what):
     assert code == 2
     lines = io.err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("sim2real: error:") and expected in lines[0], io.err
+    assert "Errno" not in lines[0]  # FFmpeg's reason without its error number
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no output, no temporary folder
     if what == "existing_out":
         assert [p.name for p in (tmp_path / "real").iterdir()] == ["keep.txt"]

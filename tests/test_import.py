@@ -66,3 +66,13 @@ def test_two_workers_render_the_same_views(tmp_path, procedural_scene, procedura
         np.testing.assert_array_equal(g1.depth, g2.depth)
         np.testing.assert_array_equal(g1.object_id, g2.object_id)
     np.testing.assert_array_equal(GBuffer.load(one[0]).depth, procedural_caster.render(cams[0]).depth)
+
+
+def test_a_face_past_the_vertices_is_one_line(tmp_path, capsys):
+    obj = tmp_path / "liver.obj"
+    obj.write_text("v 0 0 0\nv 100 0 0\nv 0 100 0\nf 1 2 3\nf 1 2 4\n")  # vertex 4 does not exist
+    code = main(["scene", "import", "--mesh", f"{obj}=liver", "--camera-region", "auto", "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.strip() == (f"sim2real: error: cannot read mesh file {obj}: "
+                                         "a face refers to a vertex the file does not have")
+    assert not (tmp_path / "s").exists()

@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 from sim2real.fileio import atomic_write_text
 
 
@@ -363,8 +363,12 @@ def read_yaml(path) -> dict:
     try:
         with open(path) as f:
             data = yaml.safe_load(f)
-    except (OSError, yaml.YAMLError) as e:
-        raise UserError(f"cannot read config {path}: {e}") from None
+    except OSError as e:
+        raise UserError(f"cannot read config {path}: {reason(e)}") from None
+    except yaml.YAMLError as e:  # its message spans three lines: say where and what in one
+        mark = getattr(e, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        raise UserError(f"cannot read config {path}: not valid YAML ({where}{getattr(e, 'problem', None) or reason(e)})") from None
     if data is not None and not isinstance(data, dict):
         raise UserError(f"config {path} must hold a mapping of sections")
     return data or {}

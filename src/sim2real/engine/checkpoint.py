@@ -31,9 +31,13 @@ complete checkpoint or the new one.
 from __future__ import annotations
 
 import os
+import pickle
 import random
+import re
 import shutil
+import warnings
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import torch
@@ -43,6 +47,66 @@ from sim2real.fileio import atomic_path
 
 FORMAT = "sim2real-train/1"
 LAST = "last.pt"
+
+
+def mismatch(e: Exception, shown: int = 3) -> str:
+    """One short line from the error of ``Module.load_state_dict`` (or of any other exception, its
+    first line): which keys are missing or unexpected (the first ``shown`` of each, and how many)
+    and which tensors differ in shape. torch's own message lists every key, one paragraph each."""
+    lines = [ln.strip() for ln in str(e).strip().splitlines()]
+    parts = []
+    for ln in lines[1:]:
+        m = re.match(r"(Missing|Unexpected) key\(s\) in state_dict: (.*)", ln)
+        if m:
+            keys = re.findall(r'"([^"]+)"', m.group(2))
+            more = f", ... ({len(keys)} in all)" if len(keys) > shown else ""
+            parts.append(f"{m.group(1).lower()} {', '.join(keys[:shown])}{more}")
+        m = re.match(r"size mismatch for (\S+): copying a param with shape torch\.Size\((\[.*?\])\) from checkpoint, "
+                     r"the shape in current model is torch\.Size\((\[.*?\])\)", ln)
+        if m:
+            parts.append(f"{m.group(1)} has shape {m.group(2)} in the file, {m.group(3)} here")
+    if not parts:
+        return lines[0] if lines and lines[0] else type(e).__name__
+    more = f"; ... ({len(parts)} differences in all)" if len(parts) > shown else ""
+    return "; ".join(parts[:shown]) + more
+
+
+_LEGACY_MAGIC = pickle.dumps(0x1950A86A20F9469CFC6C, protocol=2)
+"""How a file of torch.save's format before the zip archive (torch < 1.6) begins."""
+
+
+def _torch_file(path) -> bool:
+    """Whether ``path`` begins as torch.save's output does: a zip archive (whole or cut short), or
+    the older pickle format."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(_LEGACY_MAGIC))
+    except OSError:
+        return False
+    return head.startswith(b"PK\x03\x04") or head == _LEGACY_MAGIC
+
+
+def read_torch_file(source: str | os.PathLike | BinaryIO, path, what: str, map_location="cpu"):
+    """``torch.load(source, weights_only=True)`` with any failure turned into one
+    :class:`UserError` line ``cannot read {what} {path}: <why>``: a damaged zip archive (a
+    truncated copy), a file that ``torch.save`` did not write, or one holding objects other than
+    tensors and plain containers (which ``weights_only`` refuses, for safety). torch's own
+    messages for these run to several sentences or, for a file of another kind, name a stray key."""
+    try:
+        with warnings.catch_warnings():  # its unpickler warns about pickle protocols it may not read
+            warnings.simplefilter("ignore")
+            return torch.load(source, map_location=map_location, weights_only=True)
+    except Exception as e:  # noqa: BLE001 - whatever torch.load raises becomes one line
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        if not _torch_file(path):
+            why = "not a file written by torch.save"
+        elif isinstance(e, pickle.UnpicklingError) and "weights only" in first.lower():
+            why = "it holds objects other than tensors and plain containers, which are not loaded (for safety)"
+        elif "PytorchStreamReader" in first:
+            why = "a damaged or incomplete archive (a truncated copy?)"
+        else:
+            why = f"{type(e).__name__}: {first[:160]}"
+        raise UserError(f"cannot read {what} {path}: {why}") from None
 
 
 def find_run_checkpoint(path: str | os.PathLike) -> Path:
@@ -111,9 +175,9 @@ def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
     try:
         with open(path, "rb") as f:  # the stamp of the very file read, even if it is replaced meanwhile
             st = os.fstat(f.fileno())
-            state = torch.load(f, map_location=map_location, weights_only=True)
-    except Exception as e:
-        raise UserError(f"cannot read checkpoint {path}: {type(e).__name__}: {e}") from None
+            state = read_torch_file(f, path, "checkpoint", map_location)
+    except OSError as e:
+        raise UserError(f"cannot read checkpoint {path}: {e.strerror or e}") from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise UserError(f"{path} is not a sim2real training checkpoint")
     state["stamp"] = [st.st_ino, st.st_mtime_ns, st.st_size]

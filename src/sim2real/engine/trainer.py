@@ -195,8 +195,7 @@ class Trainer:
             for name, sch in self.schedulers.items():
                 sch.load_state_dict(state["schedulers"][name])
         except (RuntimeError, KeyError, ValueError) as e:
-            first = str(e).strip().splitlines()[0]
-            raise UserError(f"checkpoint {path} does not match this configuration ({first})") from None
+            raise UserError(f"checkpoint {path} does not match this configuration ({ckpt.mismatch(e)})") from None
         self.step = int(state["step"])
         rngs = state["rng"]
         ckpt.set_rng_state(rngs[self.dist.rank] if self.dist.rank < len(rngs) else rngs[0])

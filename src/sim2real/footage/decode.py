@@ -25,7 +25,7 @@ import numpy as np
 from PIL import Image
 
 from sim2real.data.real import to_rgb
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mkv", ".mov", ".m4v", ".webm", ".mpg", ".mpeg")
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -193,7 +193,7 @@ def _video_frames(source: Source, fps: float, max_frames: int | None) -> Iterato
     try:
         container = av.open(str(path))
     except (av.FFmpegError, OSError, ValueError) as e:
-        raise UserError(f"cannot open video {path}: {e}") from None
+        raise UserError(f"cannot open video {path}: {reason(e)}") from None
     with container:
         if not container.streams.video:
             raise UserError(f"{path} holds no video stream")
@@ -203,7 +203,7 @@ def _video_frames(source: Source, fps: float, max_frames: int | None) -> Iterato
             try:  # to the key frame before the range's start; decoding then skips to it
                 container.seek(int(source.start / stream.time_base), stream=stream, backward=True)
             except av.FFmpegError as e:
-                raise UserError(f"cannot seek in video {path}: {e}") from None
+                raise UserError(f"cannot seek in video {path}: {reason(e)}") from None
         step, next_t, n, decoded, last_t, ended = 1.0 / fps, source.start, 0, 0, 0.0, True
         try:
             for frame in container.decode(stream):
@@ -221,7 +221,7 @@ def _video_frames(source: Source, fps: float, max_frames: int | None) -> Iterato
                 n += 1
                 next_t += step * max(1, math.floor((t + 1e-6 - next_t) / step) + 1)
         except av.FFmpegError as e:
-            raise UserError(f"cannot decode video {path} (corrupt or truncated?): {e}") from None
+            raise UserError(f"cannot decode video {path} (corrupt or truncated?): {reason(e)}") from None
         if decoded == 0:
             raise UserError(f"video {path} has no decodable frames")
         duration = _duration(container, stream)

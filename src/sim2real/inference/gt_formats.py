@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 from sim2real.fileio import atomic_write_bytes
 from sim2real.scene.camera import rotation_to_quaternion
 from sim2real.scene.classes import ClassTable
@@ -56,7 +56,7 @@ def read_depth_png(path: str | os.PathLike, scale: float = DEPTH_PNG_SCALE) -> n
         with Image.open(path) as im:
             a = np.array(im)
     except (OSError, ValueError) as e:
-        raise UserError(f"cannot read depth image {path}: {e}") from None
+        raise UserError(f"cannot read depth image {path}: {reason(e)}") from None
     if a.ndim != 2 or a.dtype not in (np.uint16, np.int32, np.uint8):
         raise UserError(f"{path} is not a single-channel 16-bit depth PNG")
     return (a.astype(np.float64) / scale).astype(np.float32)
@@ -88,7 +88,7 @@ def read_flo(path: str | os.PathLike) -> np.ndarray:
     try:
         data = Path(path).read_bytes()
     except OSError as e:
-        raise UserError(f"cannot read flow file {path}: {e}") from None
+        raise UserError(f"cannot read flow file {path}: {reason(e)}") from None
     if len(data) < 12:
         raise UserError(f"{path} is not a .flo file (too short)")
     magic, w, h = struct.unpack("<fii", data[:12])

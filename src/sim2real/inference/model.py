@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from sim2real.engine import precision as numerics
-from sim2real.engine.checkpoint import LAST, load_checkpoint
+from sim2real.engine.checkpoint import LAST, load_checkpoint, mismatch
 from sim2real.engine.device import resolve_device
 from sim2real.errors import UserError
 from sim2real.inference.compiled import compile_networks
@@ -295,8 +295,7 @@ def load_run(run_dir: str | os.PathLike, device: str | torch.device = "auto",
     try:
         gen.load_state_dict(gen_state)
     except RuntimeError as e:
-        first = str(e).strip().splitlines()[0]
-        raise UserError(f"checkpoint {path} does not match its own configuration ({first})") from None
+        raise UserError(f"checkpoint {path} does not match its own configuration ({mismatch(e)})") from None
     gen.to(dev)
     if numerics.mixed_precision(dev):
         method.memory_format = torch.channels_last

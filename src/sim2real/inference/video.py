@@ -27,7 +27,7 @@ from typing import Iterable, Iterator
 import av
 import numpy as np
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 from sim2real.fileio import atomic_path, atomic_write_image, prepare_output_dir
 from sim2real.threads import worker_count
 
@@ -137,7 +137,7 @@ def read_video_frames(path: str | os.PathLike) -> np.ndarray:
         with av.open(str(path)) as container:
             frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
     except (OSError, av.error.FFmpegError) as e:
-        raise UserError(f"cannot decode video {path}: {e}") from None
+        raise UserError(f"cannot decode video {path}: {reason(e)}") from None
     if not frames:
         return np.zeros((0, 0, 0, 3), np.uint8)
     return np.stack(frames)
@@ -151,7 +151,7 @@ def read_video(path: str | os.PathLike) -> tuple[int, int, int]:
             for f in container.decode(video=0):
                 n, h, w = n + 1, f.height, f.width
     except (OSError, av.error.FFmpegError) as e:
-        raise UserError(f"cannot decode video {path}: {e}") from None
+        raise UserError(f"cannot decode video {path}: {reason(e)}") from None
     return n, h, w
 
 

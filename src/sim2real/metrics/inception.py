@@ -36,6 +36,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from sim2real.engine.checkpoint import mismatch, read_torch_file
 from sim2real.errors import UserError
 
 FID_WEIGHTS_ENV = "SIM2REAL_FID_WEIGHTS"
@@ -297,10 +298,7 @@ def load_fid_inception(path: str | os.PathLike | None = None,
     p = resolve_fid_weights(path)
     if p is None:
         return None
-    try:
-        state = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is the user's problem
-        raise UserError(f"cannot read FID Inception weights {p}: {exc}") from exc
+    state = read_torch_file(p, p, "FID Inception weights")
     if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
         state = state["state_dict"]
     if not isinstance(state, dict):
@@ -314,7 +312,7 @@ def load_fid_inception(path: str | os.PathLike | None = None,
     try:
         net.load_state_dict(state, strict=True)
     except RuntimeError as exc:
-        raise UserError(f"{p} is not an FID Inception-v3 state dict: {exc}") from exc
+        raise UserError(f"{p} is not an FID Inception-v3 state dict ({mismatch(exc)})") from None
     if device is not None:
         net = net.to(device)
     return net

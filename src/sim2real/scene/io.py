@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 from sim2real.scene.blend import blend_to_glb
 from sim2real.scene.classes import ClassTable
 from sim2real.scene.conventions import DEFAULT_CREASE_DEG, UNITS
@@ -46,8 +46,10 @@ def _read(path: Path) -> trimesh.Trimesh | trimesh.Scene:
     kwargs = {"split_objects": True, "group_material": False} if path.suffix.lower() == ".obj" else {}
     try:
         return trimesh.load(str(path), process=False, **kwargs)
+    except IndexError:  # trimesh indexes the vertices with the faces as read
+        raise UserError(f"cannot read mesh file {path}: a face refers to a vertex the file does not have") from None
     except Exception as e:  # trimesh raises many types for unreadable files
-        raise UserError(f"cannot read mesh file {path}: {type(e).__name__}: {e}") from None
+        raise UserError(f"cannot read mesh file {path}: {type(e).__name__}: {reason(e)}") from None
 
 
 def _as_trimesh(geom, label: str) -> trimesh.Trimesh:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 from sim2real.scene.camera import quaternion_to_rotation
 
 
@@ -20,7 +20,7 @@ def read_tum(path: str | os.PathLike, what: str = "pose file") -> tuple[list[tup
     try:
         text = Path(path).read_text()
     except (OSError, UnicodeDecodeError) as e:
-        raise UserError(f"cannot read {what} {path}: {e}") from None
+        raise UserError(f"cannot read {what} {path}: {reason(e)}") from None
     comments: list[tuple[int, str]] = []
     poses: list[tuple[float, np.ndarray]] = []
     for lineno, line in enumerate(text.splitlines(), 1):
