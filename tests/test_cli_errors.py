@@ -1,5 +1,6 @@
 """Every bad input gets one clear line on stderr and a non-zero exit, never a traceback."""
 
+import json
 import subprocess
 import sys
 
@@ -167,3 +168,18 @@ def test_seg_iterations_default_and_range(capsys):
         main(["demo", "--out", "O", "--seg-iterations", "-1"])
     code, err = e.value.code, capsys.readouterr().err.strip()
     assert_one_line_error(code, err, "--seg-iterations", "-1")
+
+
+@pytest.mark.parametrize("frames", [5, 12])
+def test_scene_trajectory_summarises_what_it_measured(capsys, tmp_path, scene_dir, frames):
+    """A path of 5 frames has overlaps after 1 frame only (after 5 needs a 6th); 12 frames reach 10."""
+    out = tmp_path / "path.txt"
+    code = main(["scene", "trajectory", str(scene_dir), "--frames", str(frames), "--height", "64", "--width", "96",
+                 "--out", str(out)])
+    io = capsys.readouterr()
+    assert code == 0, io.err
+    motion = json.loads(out.with_name("path.txt.json").read_text())["motion"]
+    k = {5: "1", 12: "10"}[frames]
+    assert motion["overlap"]["10"] is None if frames == 5 else motion["overlap"]["10"] is not None
+    assert f"overlap after {k} frame{'s' if k != '1' else ''} {motion['overlap'][k]:.0%}" in io.out
+    assert io.out.startswith(f"{frames} poses written to {out} (median flow ")

@@ -53,6 +53,7 @@ def test_frames_refused_with_one_line(path, tmp_path, capsys):
     base, d, work = path
     common = ["--scene", d, "--real", real_dir(base), "--device", "cpu", "--no-progress"]
     (tmp_path / "few").mkdir()
+    (tmp_path / "empty").mkdir()
     for t in range(3):
         (tmp_path / "few" / f"{t}.png").write_bytes((work / "ceiling" / f"{t:04d}.png").read_bytes())
     cases = [(["--frames", tmp_path / "few", "--trajectory", work / "traj.txt", "--out", tmp_path / "o1"],
@@ -60,6 +61,8 @@ def test_frames_refused_with_one_line(path, tmp_path, capsys):
              (["--frames", work / "ceiling", "--out", tmp_path / "o2"], "exactly one --trajectory"),
              (["--frames", tmp_path / "missing", "--trajectory", work / "traj.txt", "--out", tmp_path / "o3"],
               "neither a folder of frames nor a video"),
+             (["--frames", tmp_path / "empty", "--trajectory", work / "traj.txt", "--out", tmp_path / "o6"],
+              f"no frames (png/jpg) found under {tmp_path / 'empty'}"),
              (["--frames", work / "ceiling", "--trajectory", work / "traj.txt", "--out", tmp_path / "o4",
                "--precision", "bf16"], "evaluates a video without one"),
              (["--frames", work / "ceiling", "--trajectory", work / "traj.txt", "--out", tmp_path / "o5", "--compile"],

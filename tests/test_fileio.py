@@ -6,7 +6,7 @@ import pytest
 from sim2real.config import read_yaml
 from sim2real.data.views import list_views
 from sim2real.errors import UserError, reason
-from sim2real.fileio import read_json, read_json_or_none
+from sim2real.fileio import atomic_write_text, read_json, read_json_or_none
 from sim2real.scene.scene import Scene
 
 
@@ -76,6 +76,10 @@ def test_call_sites_name_their_file(tmp_path):
     (views / "views.json").write_text("[]")
     with pytest.raises(UserError, match=r"^cannot read views manifest .*views\.json: expected a JSON object, found list$"):
         list_views(views)
+    (views / "views.json").write_text('{"x": 1}')  # JSON, but not a views manifest
+    with pytest.raises(UserError) as e:
+        list_views(views)
+    assert _one_line(e) == f"{views / 'views.json'} is not a views manifest of sim2real (format sim2real-views/1 with a count)"
 
 
 def test_reason_keeps_the_words_and_drops_numbers_and_repeated_names():
@@ -95,3 +99,12 @@ def test_yaml_errors_say_where_in_one_line(tmp_path):
     with pytest.raises(UserError) as e:
         read_yaml(tmp_path / "none.yaml")
     assert _one_line(e) == f"cannot read config {tmp_path / 'none.yaml'}: No such file or directory"
+
+
+def test_a_file_in_the_way_of_an_output_folder_is_one_line(tmp_path):
+    (tmp_path / "a.png").write_text("x")
+    for target in (tmp_path / "a.png" / "out.txt", tmp_path / "a.png" / "b" / "out.txt"):
+        with pytest.raises(UserError) as e:
+            atomic_write_text(target, "y")
+        assert _one_line(e) == f"cannot write {target}: {tmp_path / 'a.png'} is a file, not a folder"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"]  # nothing else written

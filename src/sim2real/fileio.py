@@ -18,15 +18,21 @@ from typing import Iterator
 import numpy as np
 from PIL import Image
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it is renamed to ``path``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix + ".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix + ".tmp", dir=path.parent)
+    except (FileExistsError, NotADirectoryError):  # a file where a folder of the path should be
+        blocker = next((q for q in path.parents if q.exists() and not q.is_dir()), path.parent)
+        raise UserError(f"cannot write {path}: {blocker} is a file, not a folder") from None
+    except OSError as e:
+        raise UserError(f"cannot write {path}: {reason(e)}") from None
     os.close(fd)
     tmp = Path(tmp)
     try:

@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     if video is not None and args.compile:
         raise UserError("--compile compiles a run's networks; --frames DIR|VIDEO evaluates a video without one")
     if video is not None and (not args.trajectory or len(args.trajectory) != 1 or len(args.scenes) != 1):
-        raise UserError("--frames DIR|VIDEO needs exactly one --trajectory FILE and one --scene DIR (the video's path)")
+        raise UserError("--frames DIR|VIDEO needs exactly one --trajectory FILE and one --scenes DIR (the video's path)")
     if video is None and args.trajectory is not None and args.frames != 100:
         raise UserError("give either --trajectory FILE... or --frames N, not both")
     s = EvalSettings(views=args.views, frames=100 if video else args.frames, batch=args.batch, seed=args.seed, max_real=args.max_real,

@@ -140,7 +140,12 @@ def _trajectory(args: argparse.Namespace) -> int:
                            **motion_kwargs(args))
     traj.save(args.out)
     m = traj.motion
-    print(f"{len(traj.cameras)} poses written to {args.out} (median flow {m['flow_px_per_frame_median']:.2f} px/frame, "
-          f"max rotation {m['deg_per_frame_max']:.2f} deg/frame, overlap after 10 frames {m['overlap']['10']:.0%}; "
-          f"{args.out}.json)")
+    # what was measured: a single frame has no flow, a path of 10 frames or fewer no overlap after 10
+    gaps = [int(k) for k, v in m["overlap"].items() if v is not None]
+    parts = [f"median flow {m['flow_px_per_frame_median']:.2f} px/frame"] if m["flow_px_per_frame_median"] is not None else []
+    parts += [f"max rotation {m['deg_per_frame_max']:.2f} deg/frame"] if m["deg_per_frame_max"] is not None else []
+    if gaps:
+        k = max(gaps)
+        parts.append(f"overlap after {k} frame{'s' if k > 1 else ''} {m['overlap'][str(k)]:.0%}")
+    print(f"{len(traj.cameras)} poses written to {args.out} ({', '.join(parts + [f'{args.out}.json'])})")
     return 0

@@ -24,14 +24,15 @@ from sim2real.fileio import atomic_write_json, read_json_or_none
 EXTENSIONS = (".png", ".jpg", ".jpeg")
 
 
-def list_images(folder: str | os.PathLike) -> list[Path]:
-    """Sorted image files under ``folder`` (recursive, extensions case-insensitive)."""
+def list_images(folder: str | os.PathLike, what: str = "real image") -> list[Path]:
+    """Sorted image files under ``folder`` (recursive, extensions case-insensitive); ``what`` names
+    them in the error of a missing or empty folder."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise UserError(f"real image folder {folder} does not exist or is not a directory")
+        raise UserError(f"{what} folder {folder} does not exist or is not a directory")
     files = sorted(p for p in folder.rglob("*") if p.suffix.lower() in EXTENSIONS and p.is_file())
     if not files:
-        raise UserError(f"no real images (png/jpg) found under {folder}")
+        raise UserError(f"no {what}s (png/jpg) found under {folder}")
     return files
 
 

@@ -12,12 +12,13 @@ from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, read_json
 
 MANIFEST = "views.json"
+FORMAT = "sim2real-views/1"
 
 
 def write_views_manifest(directory: str | os.PathLike, scene_name: str, scene_dir: str | os.PathLike, count: int) -> None:
     atomic_write_json(
         Path(directory) / MANIFEST,
-        {"format": "sim2real-views/1", "scene": scene_name, "scene_dir": str(Path(scene_dir).resolve()), "count": int(count)},
+        {"format": FORMAT, "scene": scene_name, "scene_dir": str(Path(scene_dir).resolve()), "count": int(count)},
     )
 
 
@@ -28,7 +29,9 @@ def list_views(directory: str | os.PathLike) -> tuple[dict, list[Path]]:
     if not manifest_path.is_file():
         raise UserError(f"{directory} is not a finished views folder (no {MANIFEST}); render it with 'sim2real render'")
     manifest = read_json(manifest_path, "views manifest")
+    if manifest.get("format") != FORMAT or not isinstance(manifest.get("count"), int):
+        raise UserError(f"{manifest_path} is not a views manifest of sim2real (format {FORMAT} with a count)")
     files = sorted(directory.glob("view_*.npz"))
-    if len(files) != manifest.get("count"):
+    if len(files) != manifest["count"]:
         raise UserError(f"{directory}: views.json lists {manifest.get('count')} views but {len(files)} view files exist")
     return manifest, files

@@ -32,10 +32,7 @@ def load_frames(source: str | os.PathLike) -> list[np.ndarray]:
     """uint8 RGB frames of a folder of images (in name order) or of a video file."""
     p = Path(source)
     if p.is_dir():
-        files = list_images(p)
-        if not files:
-            raise UserError(f"no images (png/jpg) in {p}")
-        return [load_rgb(f) for f in files]
+        return [load_rgb(f) for f in list_images(p, "frame")]
     if p.is_file():
         frames = read_video_frames(p)
         if len(frames) == 0:
