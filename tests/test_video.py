@@ -114,7 +114,7 @@ def test_background_writer_raises_a_failed_png_write_in_the_caller(tmp_path):
     from sim2real.inference.video import BackgroundFrameWriter
 
     (tmp_path / "f").write_text("a file where the frames folder should be")
-    with pytest.raises(OSError):
+    with pytest.raises(UserError, match=f"^cannot write {tmp_path / 'f'}/0000.*: {tmp_path / 'f'} is a file, not a folder$"):
         with BackgroundFrameWriter(tmp_path / "f", tmp_path / "v.mp4", fps=5.0, depth=1, png_threads=2) as w:
             for f in smooth_frames(40, 18, 30):
                 w.put(f)
