@@ -18,7 +18,7 @@ from typing import Iterator
 import numpy as np
 from PIL import Image
 
-from sim2real.errors import UserError, reason
+from sim2real.errors import UserError
 
 
 @contextlib.contextmanager
@@ -31,8 +31,6 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     except (FileExistsError, NotADirectoryError):  # a file where a folder of the path should be
         blocker = next((q for q in path.parents if q.exists() and not q.is_dir()), path.parent)
         raise UserError(f"cannot write {path}: {blocker} is a file, not a folder") from None
-    except OSError as e:
-        raise UserError(f"cannot write {path}: {reason(e)}") from None
     os.close(fd)
     tmp = Path(tmp)
     try:

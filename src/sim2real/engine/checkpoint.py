@@ -42,7 +42,7 @@ from typing import BinaryIO
 import numpy as np
 import torch
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 from sim2real.fileio import atomic_path
 
 FORMAT = "sim2real-train/1"
@@ -177,7 +177,7 @@ def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
             st = os.fstat(f.fileno())
             state = read_torch_file(f, path, "checkpoint", map_location)
     except OSError as e:
-        raise UserError(f"cannot read checkpoint {path}: {e.strerror or e}") from None
+        raise UserError(f"cannot read checkpoint {path}: {reason(e)}") from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise UserError(f"{path} is not a sim2real training checkpoint")
     state["stamp"] = [st.st_ino, st.st_mtime_ns, st.st_size]
