@@ -18,7 +18,7 @@ from typing import Iterator
 import numpy as np
 from PIL import Image
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 
 
 @contextlib.contextmanager
@@ -144,7 +144,7 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as e:
-        raise UserError(f"cannot read {what} {path}: {e.strerror or e}") from None
+        raise UserError(f"cannot read {what} {path}: {reason(e)}") from None
     except UnicodeDecodeError:
         raise UserError(f"cannot read {what} {path}: not a UTF-8 text file") from None
     try:

@@ -57,7 +57,7 @@ except ImportError:  # Windows: not a target; pools are then built without a loc
 
 from sim2real import __version__
 from sim2real.config import DataConfig
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 from sim2real.fileio import atomic_write_json, cache_root, fsync_files, read_json
 from sim2real.pool import WorkerPool
 from sim2real.render.gbuffer import GBuffer
@@ -277,7 +277,7 @@ def _build(folder: Path, spec: dict, scene_dir: Path, scene: Scene, progress: bo
         fsync_files([folder.parent])
     except OSError as e:
         raise UserError(f"cannot write the view pool of scene '{spec['scene']}' to {folder}: "
-                        f"{e.strerror or e}; set data.view_pool=0 to train on fresh views") from None
+                        f"{reason(e)}; set data.view_pool=0 to train on fresh views") from None
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
@@ -323,7 +323,7 @@ def open_pool(scene_dir: Path, scene: Scene | None, cfg: DataConfig, seed: int, 
     try:
         folder.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise UserError(f"cannot create the view cache folder {folder.parent}: {e.strerror or e}; "
+        raise UserError(f"cannot create the view cache folder {folder.parent}: {reason(e)}; "
                         "point SIM2REAL_CACHE elsewhere or set data.view_pool=0") from None
     if folder.exists() and check_pool(folder, spec) is None:
         return ViewPool(spec, scene_dir, classes, table, folder)

@@ -31,7 +31,7 @@ except ImportError:  # Windows: not a target, but keep the package importable
 
 from sim2real.data.real import INDEX as REAL_INDEX
 from sim2real.engine.checkpoint import stamp
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 from sim2real.fileio import prepare_output_dir
 
 LOCK_NAME = "train.lock"
@@ -68,7 +68,7 @@ class RunLock:
         try:
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)  # not inherited across exec
         except OSError as e:
-            raise UserError(f"cannot open the run lock {self.path}: {e.strerror}") from None
+            raise UserError(f"cannot open the run lock {self.path}: {reason(e)}") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as e:
@@ -76,7 +76,7 @@ class RunLock:
             if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 raise UserError(f"run folder {self.path.parent} is in use by another sim2real process "
                                 f"({holder_of(self.path)}); wait for it to end or stop it") from None
-            print(f"sim2real: warning: cannot lock {self.path} ({e.strerror}); this file system does not "
+            print(f"sim2real: warning: cannot lock {self.path} ({reason(e)}); this file system does not "
                   "support locks, so nothing stops a second process from writing to the run", file=sys.stderr)
             return self
         os.ftruncate(fd, 0)

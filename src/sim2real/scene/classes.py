@@ -35,7 +35,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, reason
 
 LABEL_BACKGROUND = 255
 """Value of background pixels in uint8 label images; other values are class label ids."""
@@ -190,7 +190,7 @@ class ClassTable(Mapping[str, ClassInfo]):
         try:
             spec = json.loads(path.read_text())
         except OSError as e:
-            raise UserError(f"cannot read class table {path}: {e.strerror or e}") from None
+            raise UserError(f"cannot read class table {path}: {reason(e)}") from None
         except ValueError as e:
             raise UserError(f"class table {path} is not valid JSON ({e})") from None
         if not isinstance(spec, dict) or "classes" not in spec:
