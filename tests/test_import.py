@@ -76,3 +76,17 @@ def test_a_face_past_the_vertices_is_one_line(tmp_path, capsys):
     assert code == 2 and err.strip() == (f"sim2real: error: cannot read mesh file {obj}: "
                                          "a face refers to a vertex the file does not have")
     assert not (tmp_path / "s").exists()
+
+
+def test_a_ply_face_past_the_vertices_is_one_line(tmp_path, capsys):
+    # trimesh keeps a PLY's faces as written when it loads without processing; one pointing at
+    # vertex 7 of 3 used to fail later, inside the bounds computation, as an internal error
+    ply = tmp_path / "liver.ply"
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                   "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                   "0 0 0\n100 0 0\n0 100 0\n3 0 1 2\n3 0 1 7\n")
+    code = main(["scene", "import", "--mesh", f"{ply}=liver", "--camera-region", "auto", "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.strip() == (f"sim2real: error: mesh '{ply}': a face refers to vertex 7, "
+                                         "but the mesh has 3 vertices")
+    assert not (tmp_path / "s").exists()

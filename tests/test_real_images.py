@@ -11,7 +11,7 @@ from PIL import Image
 
 from sim2real.cli.main import main
 from sim2real.data.cover import ValidArea, fit_image, random_cover_crops
-from sim2real.data.real import INDEX, RealImages
+from sim2real.data.real import INDEX, RealImages, enlargement_note
 from sim2real.errors import UserError
 
 H, W = 120, 200
@@ -39,6 +39,7 @@ def test_crops_from_a_masked_real_set_never_hold_masked_pixels(tmp_path, capsys)
     capsys.readouterr()
     pool = RealImages(tmp_path / "real")
     assert pool.realset and len(pool) == 4
+    assert pool.sizes == [Image.open(f).size[::-1] for f in pool.files]  # read from the manifest
     mask = pool.valid_area(0).mask
     assert not mask.all() and mask.mean() > 0.4  # the set is masked (surround and bar)
     rng = np.random.default_rng(0)
@@ -84,6 +85,20 @@ def test_plain_folder_is_indexed_once_into_the_run_folder(tmp_path):
     Image.fromarray(reddish(9)).save(real / "3.png")
     with pytest.raises(UserError, match="1.png"):
         RealImages(real, index=run / INDEX)
+
+
+def test_frames_smaller_than_the_crop_are_named(tmp_path):
+    real = tmp_path / "real"
+    real.mkdir()
+    Image.new("RGB", (854, 480)).save(real / "a.png")
+    Image.new("L", (300, 100)).save(real / "b.png")
+    pool = RealImages(real)
+    assert pool.sizes == [(480, 854), (100, 300)]
+    # 256x512 crops: a.png scaled by max(256/480, 512/854) = 0.6, b.png by max(2.56, 1.71) = 2.56
+    note = enlargement_note(pool.sizes, 256, 512)
+    assert note.startswith("note: 1 of 2 real frames are smaller than the 256x512 training crop and are enlarged (up to 2.6x)")
+    assert enlargement_note(pool.sizes, 96, 176) is None  # b.png: max(0.96, 0.587) < 1
+    assert "up to 1.0x" in enlargement_note(pool.sizes, 104, 176)  # b.png: 1.04
 
 
 def test_cover_resize_equals_resizing_the_whole_image():

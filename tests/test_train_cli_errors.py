@@ -5,6 +5,7 @@ import shutil
 import pytest
 import torch
 import yaml
+from PIL import Image
 from train_data import real_dir, scene_dir, views_dir
 
 from sim2real.cli.main import main
@@ -147,10 +148,14 @@ def test_cuda_requested_without_cuda(capsys, tmp_path, inputs):
 
 def test_grey_and_rgba_images_train(capsys, tmp_path, inputs):
     real = real_dir(tmp_path, n=4, name="odd_modes", modes=("L", "LA", "RGBA", "P"))
+    # and one frame smaller than the tiny preset's 64x128 crop: enlarged max(64/32, 128/48) = 2.67x
+    Image.new("RGB", (48, 32), (120, 60, 50)).save(real / "small.png")
     code, err, out = train(capsys, tmp_path, [inputs[0]], real, "--iterations", "1", "--set", "method.vc=5",
                            "log_every=1", "--device", "cpu")
     assert code == 0, err
     assert "step 1" in out
+    assert out.splitlines()[0].startswith("note: 1 of 5 real frames are smaller than the 64x128 training crop "
+                                          "and are enlarged (up to 2.7x)")
     saved = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
     assert saved["iterations"] == 1 and saved["method"] == {**saved["method"], "name": "ours", "vc": 5.0} and saved["device"] == "cpu"
     assert saved["generator"]["filters"] == 8  # the tiny preset

@@ -126,6 +126,7 @@ def init_config(source) -> tuple:
     when not read): for the shipped model the YAML beside its weights, else the checkpoint's."""
     # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real import shipped
+    from sim2real.data.real import enlargement_note
     from sim2real.engine import checkpoint as ckpt
 
     if Path(source) == shipped.model_path():
@@ -137,6 +138,7 @@ def init_config(source) -> tuple:
 def run(args: argparse.Namespace) -> int:
     # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real import shipped
+    from sim2real.data.real import enlargement_note
     from sim2real.engine import checkpoint as ckpt
     from sim2real.engine.stop import exit_code, signal_name
     from sim2real.engine.trainer import Trainer
@@ -174,6 +176,10 @@ def run(args: argparse.Namespace) -> int:
                       progress=not args.no_progress, resume_state=state, init_from=args.init_from,
                       init_state=init_state)
     try:
+        if state is None and trainer.dist.is_main and trainer.real.sizes:
+            note = enlargement_note(trainer.real.sizes, cfg.data.height, cfg.data.width)
+            if note:
+                print(note, flush=True)
         if changes and trainer.dist.is_main:
             listed = ", ".join(f"{k} {_show(a)} -> {_show(b)}" for k, a, b in changes)
             print(f"resuming {args.out} at step {trainer.step} with changes: {listed}", flush=True)

@@ -36,15 +36,32 @@ def list_images(folder: str | os.PathLike, what: str = "real image") -> list[Pat
     return files
 
 
-def verify_images(files: list[Path]) -> None:
+def verify_images(files: list[Path]) -> list[tuple[int, int]]:
     """Open every file's header and check its structure (PIL ``verify``: no full decode);
-    the first unreadable one is named in a UserError."""
+    the first unreadable one is named in a UserError. Returns each image's (height, width)."""
+    sizes = []
     for path in files:
         try:
             with Image.open(path) as im:
+                sizes.append((im.height, im.width))
                 im.verify()
         except Exception as e:  # PIL raises many types for damaged files
             raise UserError(f"cannot read real image {path}: {e}") from None
+    return sizes
+
+
+def enlargement_note(sizes: list[tuple[int, int]], height: int, width: int) -> str | None:
+    """A note when real frames are smaller than the ``height x width`` training crop, else None.
+    :func:`random_resized_crop` scales an ``(h, w)`` frame by at least ``max(height / h, width / w)``;
+    above 1 the real crops are enlarged, blurrier than the generated images, and the translator
+    learns that blur."""
+    factors = [max(height / h, width / w) for h, w in sizes]
+    small = [f for f in factors if f > 1.0]
+    if not small:
+        return None
+    return (f"note: {len(small)} of {len(sizes)} real frames are smaller than the {height}x{width} training crop "
+            f"and are enlarged (up to {max(small):.1f}x), so the translator learns their blur; give frames with a "
+            f"short side of at least {height} px, or train smaller (--set data.height=... data.width=...)")
 
 
 def load_rgb(path: str | os.PathLike) -> np.ndarray:
@@ -136,6 +153,7 @@ class RealImages:
         self.index_path = Path(index) if index is not None else None
         self._new_index: dict | None = None
         self.masks: list[str | None] = []
+        self.sizes: list[tuple[int, int]] | None = None  # (h, w) per image; None when read from the index
         self._valid: dict[str, ValidArea] = {}
         if is_realset(self.folder):
             m = read_manifest(self.folder)
@@ -145,6 +163,7 @@ class RealImages:
                                 f"(all {len(m['frames'])} are held out)")
             self.files = [self.folder / f["file"] for f in frames]
             self.masks = [f["mask"] for f in frames]
+            self.sizes = [tuple(f["size"]) for f in frames]
             self.realset = True
             return
         self.realset = False
@@ -157,7 +176,7 @@ class RealImages:
             return
         self.files = list_images(folder)
         if verify:
-            verify_images(self.files)
+            self.sizes = verify_images(self.files)
         if self.index_path is not None:
             rfiles = [f.resolve() for f in self.files]
             self._new_index = {"format": INDEX_FORMAT, "root": str(root),

@@ -55,6 +55,12 @@ def _read(path: Path) -> trimesh.Trimesh | trimesh.Scene:
 def _as_trimesh(geom, label: str) -> trimesh.Trimesh:
     if not isinstance(geom, trimesh.Trimesh):
         raise UserError(f"mesh '{label}' is not a triangle mesh (found {type(geom).__name__})")
+    faces = np.asarray(geom.faces)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(geom.vertices)):
+        # trimesh keeps such faces when it loads without processing (PLY, OFF); bounds and
+        # normals would then fail with an IndexError
+        bad = int(faces.max()) if faces.max() >= len(geom.vertices) else int(faces.min())
+        raise UserError(f"mesh '{label}': a face refers to vertex {bad}, but the mesh has {len(geom.vertices)} vertices")
     return geom
 
 
