@@ -90,3 +90,16 @@ def test_a_ply_face_past_the_vertices_is_one_line(tmp_path, capsys):
     assert code == 2 and err.strip() == (f"sim2real: error: mesh '{ply}': a face refers to vertex 7, "
                                          "but the mesh has 3 vertices")
     assert not (tmp_path / "s").exists()
+
+
+def test_one_mesh_flag_takes_several_files(tmp_path, capsys):
+    # 'scene import --mesh organs/*.stl' (the shell's expansion) mixed with a repeated --mesh
+    parts = _parts()
+    for name, mesh in parts.items():
+        mesh.export(tmp_path / f"{name}.stl")
+    code = main(["scene", "import", "--mesh", str(tmp_path / "liver_main.stl"), str(tmp_path / "abdominal_wall.stl"),
+                 "--mesh", f"{tmp_path / 'blob.stl'}=fat", "--camera-region", "0,0,120,20,20,20", "--out", str(tmp_path / "s")])
+    assert code == 0, capsys.readouterr().err
+    loaded = Scene.load(tmp_path / "s")
+    assert sorted(zip((o.name for o in loaded.objects), loaded.classes)) == [
+        ("abdominal_wall", "abdominal_wall"), ("blob", "fat"), ("liver_main", "liver")]

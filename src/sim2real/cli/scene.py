@@ -20,9 +20,10 @@ def register(sub) -> None:
     g.set_defaults(func=_generate)
 
     i = ss.add_parser("import", help="make a scene from your own meshes (OBJ, PLY, STL, glTF/GLB, ...)")
-    i.add_argument("--mesh", action="append", required=True, metavar="PATH[=CLASS]",
-                   help="a mesh file and its class; without =CLASS every part of the file is an object "
-                        "whose class comes from --class or from its name (e.g. 'Kidney_left' is a kidney)")
+    i.add_argument("--mesh", action="extend", nargs="+", required=True, metavar="PATH[=CLASS]",
+                   help="mesh files, each with its class or not (repeatable; 'organs/*.stl' works); "
+                        "without =CLASS every part of a file is an object whose class comes from --class "
+                        "or from its name (e.g. 'Kidney_left' is a kidney)")
     i.add_argument("--class", dest="classes", action="append", default=[], metavar="PART=CLASS",
                    help="class of a named part of a multi-object file")
     i.add_argument("--class-table", default=None, metavar="FILE",
