@@ -126,7 +126,6 @@ def init_config(source) -> tuple:
     when not read): for the shipped model the YAML beside its weights, else the checkpoint's."""
     # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real import shipped
-    from sim2real.data.real import enlargement_note
     from sim2real.engine import checkpoint as ckpt
 
     if Path(source) == shipped.model_path():
