@@ -103,3 +103,19 @@ def test_one_mesh_flag_takes_several_files(tmp_path, capsys):
     loaded = Scene.load(tmp_path / "s")
     assert sorted(zip((o.name for o in loaded.objects), loaded.classes)) == [
         ("abdominal_wall", "abdominal_wall"), ("blob", "fat"), ("liver_main", "liver")]
+
+
+def test_a_folder_gives_its_mesh_files(tmp_path, capsys):
+    organs = tmp_path / "organs"
+    organs.mkdir()
+    for name, mesh in _parts().items():
+        if name != "blob":
+            mesh.export(organs / f"{name}.stl")
+    (organs / "notes.txt").write_text("not a mesh")  # left out
+    code = main(["scene", "import", "--mesh", str(organs), "--camera-region", "0,0,120,20,20,20", "--out", str(tmp_path / "s")])
+    assert code == 0, capsys.readouterr().err
+    assert sorted(o.name for o in Scene.load(tmp_path / "s").objects) == ["abdominal_wall", "liver_main"]
+    (tmp_path / "empty").mkdir()
+    code = main(["scene", "import", "--mesh", str(tmp_path / "empty"), "--camera-region", "auto", "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert code == 2 and f"folder {tmp_path / 'empty'} holds no mesh files" in err and not (tmp_path / "t").exists()

@@ -21,7 +21,8 @@ def register(sub) -> None:
 
     i = ss.add_parser("import", help="make a scene from your own meshes (OBJ, PLY, STL, glTF/GLB, ...)")
     i.add_argument("--mesh", action="extend", nargs="+", required=True, metavar="PATH[=CLASS]",
-                   help="mesh files, each with its class or not (repeatable; 'organs/*.stl' works); "
+                   help="mesh files or folders of them, each with its class or not (repeatable; 'organs/*.stl' "
+                        "and 'organs/' work); "
                         "without =CLASS every part of a file is an object whose class comes from --class "
                         "or from its name (e.g. 'Kidney_left' is a kidney)")
     i.add_argument("--class", dest="classes", action="append", default=[], metavar="PART=CLASS",

@@ -26,6 +26,7 @@ from sim2real.scene.io import (
     class_from_name,
     has_vertex_normals,
     load_parts,
+    mesh_files,
     parse_vector,
     scale_mesh,
     smooth_normals,
@@ -48,7 +49,7 @@ def import_scene(args: argparse.Namespace) -> Scene:
     table = ClassTable.from_file(args.class_table) if args.class_table else ClassTable.defaults()
     mapping = _mapping(args.classes)
     parts: dict[str, tuple[str, object, str]] = {}  # name -> (class, mesh in file units, suffix)
-    for spec in args.mesh:
+    for spec in [one for given in args.mesh for one in mesh_files(given)]:
         path, _, cls = spec.partition("=")
         suffix = Path(path).suffix.lower()
         if cls:

@@ -26,6 +26,8 @@ SCENE_ACROSS_MM = (20.0, 2000.0)
 """Plausible size of a scene without a liver (largest side of its bounding box), mm."""
 NORMALS_SUFFIXES = (".stl", ".obj")
 """File types whose meshes get smooth normals at import when they carry none."""
+FOLDER_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off", ".blend")
+"""File types a folder given as a mesh contributes (any other file in it is left out)."""
 
 
 
@@ -39,6 +41,18 @@ def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
         raise UserError(f"mesh '{name}' is not made of triangles")
     if not np.all(np.isfinite(mesh.vertices)):
         raise UserError(f"mesh '{name}' has NaN or infinite vertices")
+
+def mesh_files(spec: str) -> list[str]:
+    """``PATH[=CLASS]`` as one or more specs: a folder becomes its mesh files (by
+    :data:`FOLDER_SUFFIXES`, sorted, not recursive), each with the folder's ``=CLASS`` if given."""
+    path, eq, cls = spec.partition("=")
+    if not Path(path).is_dir():
+        return [spec]
+    files = sorted(p for p in Path(path).iterdir() if p.is_file() and p.suffix.lower() in FOLDER_SUFFIXES)
+    if not files:
+        raise UserError(f"folder {path} holds no mesh files ({', '.join(s[1:] for s in FOLDER_SUFFIXES)})")
+    return [f"{f}{eq}{cls}" for f in files]
+
 
 def _read(path: Path) -> trimesh.Trimesh | trimesh.Scene:
     if not path.is_file():
