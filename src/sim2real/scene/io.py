@@ -30,7 +30,6 @@ FOLDER_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off", ".blend")
 """File types a folder given as a mesh contributes (any other file in it is left out)."""
 
 
-
 def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
     """Refuse meshes the ray caster cannot use: empty, non-triangle, non-finite."""
     if not isinstance(mesh, trimesh.Trimesh):
@@ -41,6 +40,7 @@ def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
         raise UserError(f"mesh '{name}' is not made of triangles")
     if not np.all(np.isfinite(mesh.vertices)):
         raise UserError(f"mesh '{name}' has NaN or infinite vertices")
+
 
 def mesh_files(spec: str) -> list[str]:
     """``PATH[=CLASS]`` as one or more specs: a folder becomes its mesh files (by
