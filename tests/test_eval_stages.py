@@ -100,6 +100,15 @@ def test_realism_stage_identical_sets():
     assert r["rows"]["model"]["proxy"] == pytest.approx(0.0, abs=1e-12)  # the real images themselves
     assert r["rows"]["model"]["detail"] == pytest.approx(1.0)
     assert r["rows"]["a_ref"]["detail"] == 0.0 and r["rows"]["a_ref"]["proxy"] > 0.3
+    # the proxy's real row, one half of the real images against the other: two halves of 8 draws
+    # of the same noise are near each other, far nearer than the flat a_ref is to the noise
+    many = [rng.integers(0, 256, (16, 24, 3), dtype=np.uint8) for _ in range(16)]
+    r = realism_stage(vs, many, None, status, EvalSettings(), ["model", "a_ref"])
+    assert 0.0 < r["proxy_real_held_out"] < 0.1 * r["rows"]["a_ref"]["proxy"]
+    same = realism_stage(vs, [real[0]] * 6, None, status, EvalSettings(), ["model", "a_ref"])
+    assert same["proxy_real_held_out"] == pytest.approx(0.0, abs=1e-12)  # identical halves
+    one = realism_stage(vs, real[:1], None, status, EvalSettings(), ["model", "a_ref"])
+    assert one["proxy_real_held_out"] is None  # no half to compare with
 
 
 def test_segmentation_stage(setup, views, tmp_path):

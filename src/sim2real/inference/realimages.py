@@ -155,6 +155,13 @@ def load_segmentation_set(labelled: Sequence[tuple[Path, Path]], height: int, wi
     return to_nchw(xs), torch.from_numpy(np.stack(ys))
 
 
+def real_halves(real_imgs: Sequence[np.ndarray], seed: int) -> tuple[list, list]:
+    """The real images split in two halves by a seeded permutation: (reference, held out); the
+    realism measures compare every row with the first and score the second as real frames."""
+    perm = np.random.default_rng((seed, 2)).permutation(len(real_imgs))
+    return [real_imgs[i] for i in perm[: len(perm) // 2]], [real_imgs[i] for i in perm[len(perm) // 2:]]
+
+
 def to_nchw(frames: Sequence[np.ndarray]):
     return torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous()
 

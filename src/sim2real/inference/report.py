@@ -159,7 +159,8 @@ def _blocks(m: dict, samples: dict[str, str]) -> list[tuple]:
 _BESIDE = [("orb_1_correct", "ORB-1 correct / pair", "higher"), ("orb_10_correct", "ORB-10 correct / pair", "higher"),
            ("of_error", "OF error (px)", "lower")]
 _BESIDE_REALISM = [("c2st", "C2ST AUC (0.5 = as real)"), ("random_kid", "KID, random-net features (0 = as real)"),
-                   ("dice", "Dice"), ("fid", "FID"), ("kid", "KID (Inception)")]
+                   ("dice", "Dice"), ("fid", "FID"), ("kid", "KID (Inception)"),
+                   ("proxy", "proxy colour+texture (not FID)")]
 _ROW_LABELS = {"model": "model", "ceiling": "ceiling (a perfect video)", "floor": "floor (a flickering video)",
                "a_ref": "a_ref (untranslated)", "real_held_out": "real images (held out)"}
 
@@ -180,8 +181,10 @@ def realism_beside_blocks(m: dict) -> list[tuple]:
     b: list[tuple] = [("h", 2, "Consistency beside realism"),
                       ("p", "Consistency counts reward any pattern that stays on the surface, realistic or not; the "
                             "realism measures say whether the frames look like the real images. Read them together. "
-                            "The realism measures compare each row with half of the real images; the other half "
-                            "(real images, held out) shows the value of real frames themselves. C2ST: held-out AUC "
+                            "C2ST and KID compare each row with half of the real images; the other half "
+                            "(real images, held out) shows the value of real frames themselves. FID and the proxy "
+                            "compare each row with all the real images; the proxy's real row is one half against "
+                            "the other. C2ST: held-out AUC "
                             "of a small CNN trained to tell the row's frames from real ones (0.5: it cannot, 1: "
                             "always); "
                             "KID in the features of a fixed random network (0: the same distribution)."),

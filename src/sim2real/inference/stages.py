@@ -24,7 +24,7 @@ from sim2real.fileio import atomic_write_json
 from sim2real.inference.dice import class_dice, dice_of, segmenters  # torch-heavy training code, only with labels
 from sim2real.inference.frames import chunked, iter_gbuffers
 from sim2real.inference.jobs import Jobs, results
-from sim2real.inference.realimages import fit_image, to_nchw
+from sim2real.inference.realimages import fit_image, real_halves, to_nchw
 from sim2real.inference.report import write_report
 from sim2real.inference.rows import PAPER_KS, sequence_row
 from sim2real.inference.samples import safe_name, write_samples
@@ -163,11 +163,16 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
         # detail: the row's mean grey gradient as a share of the real images' (1 = as detailed)
         g_real = p["proxy_grad_mean_real"]
         realism[row]["detail"] = p["proxy_grad_mean_gen"] / g_real if g_real > 0 else None
+    # the proxy's scale: what real frames score, one half of the real images against the other
+    ref, held = real_halves(real_imgs, s.seed)
+    proxy_real = (proxy_colour_texture_distance(to_nchw(held), to_nchw(ref))["proxy_colour_texture_distance"]
+                  if ref and held else None)
     measures = weight_free_realism(vs.scored, real_imgs, s, rows_shown, device, say)
     for name, m in measures.items():
         for row in rows_shown:
             realism[row][name] = m["rows"].get(row)
-    return {"rows": realism, "fid": fid, "fid_info": fid_info, "proxy": proxy, "reason": reason, "measures": measures}
+    return {"rows": realism, "fid": fid, "fid_info": fid_info, "proxy": proxy, "proxy_real_held_out": proxy_real,
+            "reason": reason, "measures": measures}
 
 
 def device_type(device) -> str:
@@ -187,9 +192,7 @@ def weight_free_realism(scored: dict[str, list], real_imgs: Sequence[np.ndarray]
     ``random_kid`` the unbiased KID in a fixed random network's features (0: as real).
     """
     out: dict[str, dict] = {}
-    perm = np.random.default_rng((s.seed, 2)).permutation(len(real_imgs))
-    ref = [real_imgs[i] for i in perm[: len(perm) // 2]]
-    held = [real_imgs[i] for i in perm[len(perm) // 2:]]
+    ref, held = real_halves(real_imgs, s.seed)
     sets = {**{r: scored[r] for r in rows_shown}, "real_held_out": held}
     small = min(len(ref), min(len(v) for v in sets.values()))
     specs = [("random_kid", 0.0, s.realism_kid, 2), ("c2st", 0.5, s.c2st_steps > 0, 4)]
