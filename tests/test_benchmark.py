@@ -47,6 +47,8 @@ def test_every_method_and_metric_in_the_table(everything):
         assert same or not e["time_independent"], name
     assert table["methods"]["of_unit"]["time_independent"] is False
     assert {"ceiling", "floor", "a_ref", "real_held_out"} <= set(table["anchors"])
+    first = json.loads((everything / "evaluations" / next(iter(table["methods"])) / "metrics.json").read_text())
+    assert table["anchors"]["real_held_out"]["proxy"] == first["realism"]["proxy"]["rows"]["real_held_out"] > 0
     # ours: two runs with their own seeds; its row is their mean, its range their min and max
     runs = table["methods"]["ours"]["runs"]
     assert {n: r["seed"] for n, r in runs.items()} == {"ours": 0, "ours.seed1": 1}

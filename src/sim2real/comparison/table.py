@@ -48,6 +48,9 @@ def _row(m: dict, row: str) -> dict:
     realism = m.get("realism", {}).get(REALISM, {}).get("rows", {})
     if row in realism:
         out[REALISM] = realism[row]
+    proxy = m.get("realism", {}).get("proxy", {}).get("rows", {})
+    if row == "real_held_out" and proxy.get(row) is not None:  # the other rows carry theirs
+        out["proxy"] = proxy[row]
     odo = m.get("odometry", {}).get("rows", {}).get(row, {})
     for k, v in odo.items():
         out[f"odometry_{k}_success"] = v.get("success_rate")
