@@ -38,8 +38,8 @@ from pathlib import Path
 # (module, attribute, measure): wrapped with a timer when the module has the attribute. Nested
 # calls count in each measure they pass through.
 PROBES = [
-    ("sim2real.inference.stages", "c2st", "c2st"),
-    ("sim2real.inference.stages", "proxy_colour_texture_distance", "proxy"),
+    ("sim2real.inference.realism", "c2st", "c2st"),
+    ("sim2real.inference.realism", "proxy_colour_texture_distance", "proxy"),
     ("sim2real.inference.stages", "segmenters", "segmenters"),
     ("sim2real.inference.stages", "dice_of", "dice_of"),
     ("sim2real.inference.stages", "odometry", "odometry"),

@@ -16,11 +16,11 @@ from sim2real.inference.evaluate import EvalSettings
 from sim2real.inference.realimages import find_real
 from sim2real.inference.rows import ROWS
 from sim2real.inference.metrics_json import assemble_metrics
+from sim2real.inference.realism import realism_stage, weight_free_realism
 from sim2real.inference.stages import (
     VIEW_INDEX0,
     ViewSet,
     consistency_stage,
-    realism_stage,
     report_stage,
     segmentation_stage,
     views_stage,
@@ -104,11 +104,11 @@ def test_realism_stage_identical_sets():
     # of the same noise are near each other, far nearer than the flat a_ref is to the noise
     many = [rng.integers(0, 256, (16, 24, 3), dtype=np.uint8) for _ in range(16)]
     r = realism_stage(vs, many, None, status, EvalSettings(), ["model", "a_ref"])
-    assert 0.0 < r["proxy_real_held_out"] < 0.1 * r["rows"]["a_ref"]["proxy"]
+    assert 0.0 < r["real_held_out"]["proxy"] < 0.1 * r["rows"]["a_ref"]["proxy"]
     same = realism_stage(vs, [real[0]] * 6, None, status, EvalSettings(), ["model", "a_ref"])
-    assert same["proxy_real_held_out"] == pytest.approx(0.0, abs=1e-12)  # identical halves
+    assert same["real_held_out"]["proxy"] == pytest.approx(0.0, abs=1e-12)  # identical halves
     one = realism_stage(vs, real[:1], None, status, EvalSettings(), ["model", "a_ref"])
-    assert one["proxy_real_held_out"] is None  # no half to compare with
+    assert one["real_held_out"]["proxy"] is None  # no half to compare with
 
 
 def test_segmentation_stage(setup, views, tmp_path):
@@ -168,8 +168,6 @@ def test_report_stage(setup, views, consistency, tmp_path):
 def test_weight_free_realism_rows():
     """Every row is compared with half of the real images, the other half is the null row; flat
     frames are told apart from textured real ones, the real images' other half is not."""
-    from sim2real.inference.stages import weight_free_realism
-
     rng = np.random.default_rng(3)
     real = [rng.integers(60, 200, (24, 32, 3), dtype=np.uint8) for _ in range(16)]
     flat = [np.full((24, 32, 3), 128, np.uint8)] * 8

@@ -91,6 +91,10 @@ def test_evaluate_with_weights_and_labels(base, tmp_path, capsys):
     assert m["rows"]["model"]["detail"] == pytest.approx(p["proxy_grad_mean_gen"] / p["proxy_grad_mean_real"])
     assert m["rows"]["ceiling"]["detail"] > m["rows"]["a_ref"]["detail"] > 0
     assert m["fid_kid"]["n_gen"] == 4 and m["fid_kid"]["n_real"] == 6 and m["fid_kid"]["kid_subset_size"] == 4
+    # FID, KID and the proxy have a real row too: three real images against the other three
+    real_row = {k: m["realism"][k]["rows"]["real_held_out"] for k in ("fid", "kid", "proxy")}
+    assert all(v is not None and math.isfinite(v) for v in real_row.values()), real_row
+    assert real_row["proxy"] < m["realism"]["proxy"]["rows"]["a_ref"]
     for key in ("dice_real_train", "dice_real_held_out"):  # 3 steps of training: unstable figures are None
         assert m[key] is None or 0.0 <= m[key] <= 1.0
     assert m["dice_info"]["n_held_out"] == 1 and len(m["dice_info"]["per_seed"]) == 5  # the default seeds

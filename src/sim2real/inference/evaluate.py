@@ -50,9 +50,9 @@ from sim2real.inference.anchors import Anchors, stand_in_options
 from sim2real.inference.realimages import find_real, shared_classes
 from sim2real.inference.rows import ROWS
 from sim2real.inference.metrics_json import assemble_metrics
+from sim2real.inference.realism import realism_stage
 from sim2real.inference.stages import (
     consistency_stage,
-    realism_stage,
     report_stage,
     segmentation_stage,
     stderr_say,

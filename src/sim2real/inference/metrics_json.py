@@ -117,7 +117,8 @@ def odometry_section(per_scene: dict, rows_shown: Sequence[str], s) -> dict:
 def realism_section(realism: dict, seg: dict, rows_shown: Sequence[str]) -> dict:
     """metrics.json's ``realism``: every realism measure with its value per row (``model``,
     ``ceiling``, ``floor``, ``a_ref``, ``real_held_out``: real images not used as the reference;
-    for the proxy, whose rows compare with all the real images, one half of them against the other)
+    for FID, KID and the proxy, whose rows compare with all the real images, one half of them
+    against the other)
     and ``better`` ("lower" or "higher"), so that a reader ranks rows without knowing the measure."""
     rows_all = list(rows_shown) + ["real_held_out"]
     out: dict[str, dict] = {}
@@ -131,9 +132,9 @@ def realism_section(realism: dict, seg: dict, rows_shown: Sequence[str]) -> dict
             ("proxy", "proxy", "lower", None)):
         out[name] = {"better": better, "rows": {r: per_row.get(r, {}).get(key) for r in rows_shown},
                      "reason": why}
-        out[name]["rows"]["real_held_out"] = None  # compared with all the real images, none is held out
-    # the proxy's real row: one half of the real images against the other (the C2ST's halves)
-    out["proxy"]["rows"]["real_held_out"] = realism.get("proxy_real_held_out")
+        # the rows compare with all the real images; the real row is one half of them against
+        # the other (the C2ST's halves)
+        out[name]["rows"]["real_held_out"] = realism.get("real_held_out", {}).get(key)
     out["dice"] = {"better": "higher", "rows": {r: seg["rows"].get(r) for r in rows_shown}, "reason": seg["reason"]}
     out["dice"]["rows"]["real_held_out"] = seg["dice"]["dice_real_held_out"]
     return out

@@ -183,8 +183,8 @@ def realism_beside_blocks(m: dict) -> list[tuple]:
                             "realism measures say whether the frames look like the real images. Read them together. "
                             "C2ST and KID compare each row with half of the real images; the other half "
                             "(real images, held out) shows the value of real frames themselves. FID and the proxy "
-                            "compare each row with all the real images; the proxy's real row is one half against "
-                            "the other. C2ST: held-out AUC "
+                            "compare each row with all the real images; their real row is one half against the "
+                            "other. C2ST: held-out AUC "
                             "of a small CNN trained to tell the row's frames from real ones (0.5: it cannot, 1: "
                             "always); "
                             "KID in the features of a fixed random network (0: the same distribution)."),
