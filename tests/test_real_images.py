@@ -95,10 +95,36 @@ def test_frames_smaller_than_the_crop_are_named(tmp_path):
     pool = RealImages(real)
     assert pool.sizes == [(480, 854), (100, 300)]
     # 256x512 crops: a.png scaled by max(256/480, 512/854) = 0.6, b.png by max(2.56, 1.71) = 2.56
-    note = enlargement_note(pool.sizes, 256, 512)
-    assert note.startswith("note: 1 of 2 real frames are smaller than the 256x512 training crop and are enlarged (up to 2.6x)")
-    assert enlargement_note(pool.sizes, 96, 176) is None  # b.png: max(0.96, 0.587) < 1
-    assert "up to 1.0x" in enlargement_note(pool.sizes, 104, 176)  # b.png: 1.04
+    assert pool.enlargements(256, 512) == pytest.approx([0.6, 2.56], abs=1e-3)
+    note = enlargement_note(pool.enlargements(256, 512), 256, 512)
+    assert note.startswith("note: 1 of 2 real frames hold less than the 256x512 training crop and are enlarged (up to 2.6x)")
+    assert enlargement_note(pool.enlargements(96, 176), 96, 176) is None  # b.png: max(0.96, 0.587) < 1
+    assert "up to 1.0x" in enlargement_note(pool.enlargements(104, 176), 104, 176)  # b.png: 1.04
+    assert RealImages(real, verify=False).enlargements(256, 512) is None  # sizes unknown
+
+
+def test_a_circular_view_holds_less_than_its_box(tmp_path, capsys):
+    # frames of a circular view of radius 80 px in a black surround; the real set keeps the
+    # circle's box (a little less: the rim is eroded). The largest 1:2 window inside a circle of
+    # diameter d has its half-diagonal on the circle, (h/2)^2 + h^2 = (d/2)^2, so h = d/sqrt(5),
+    # and a crop of height H is enlarged by H*sqrt(5)/d, a little more for the filter's reach
+    yy, xx = np.mgrid[:200, :240]
+    for i in range(3):
+        img = np.random.default_rng(i).integers(90, 250, (200, 240, 3), dtype=np.uint8)
+        img[(yy + 0.5 - 100) ** 2 + (xx + 0.5 - 120) ** 2 > 80 ** 2] = 0
+        Image.fromarray(img).save(tmp_path / f"f{i}.png")
+    assert main(["realset", str(tmp_path), "--out", str(tmp_path / "real"), "--format", "png",
+                 "--dup-distance", "-1", "--quiet"]) == 0
+    capsys.readouterr()
+    pool = RealImages(tmp_path / "real")
+    d = max(max(h, w) for h, w in pool.sizes)
+    assert 150 <= d <= 160  # the circle's box, not the 200 x 240 frame
+    small, large = pool.enlargements(64, 128), pool.enlargements(96, 192)
+    for f, height in ((small, 64), (large, 96)):
+        assert all(1.0 <= x / (height * 5 ** 0.5 / d) < 1.05 for x in f), (f, d)
+    assert enlargement_note(small, 64, 128) is None  # about 0.94
+    # about 1.39, where the box alone would have said max(96 / d, 192 / d) = 1.22
+    assert enlargement_note(large, 96, 192).startswith("note: 3 of 3 real frames hold less than the 96x192")
 
 
 def test_cover_resize_equals_resizing_the_whole_image():

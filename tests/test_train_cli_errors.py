@@ -154,7 +154,7 @@ def test_grey_and_rgba_images_train(capsys, tmp_path, inputs):
                            "log_every=1", "--device", "cpu")
     assert code == 0, err
     assert "step 1" in out
-    assert out.splitlines()[0].startswith("note: 1 of 5 real frames are smaller than the 64x128 training crop "
+    assert out.splitlines()[0].startswith("note: 1 of 5 real frames hold less than the 64x128 training crop "
                                           "and are enlarged (up to 2.7x)")
     saved = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
     assert saved["iterations"] == 1 and saved["method"] == {**saved["method"], "name": "ours", "vc": 5.0} and saved["device"] == "cpu"

@@ -50,16 +50,14 @@ def verify_images(files: list[Path]) -> list[tuple[int, int]]:
     return sizes
 
 
-def enlargement_note(sizes: list[tuple[int, int]], height: int, width: int) -> str | None:
-    """A note when real frames are smaller than the ``height x width`` training crop, else None.
-    :func:`random_resized_crop` scales an ``(h, w)`` frame by at least ``max(height / h, width / w)``;
-    above 1 the real crops are enlarged, blurrier than the generated images, and the translator
-    learns that blur."""
-    factors = [max(height / h, width / w) for h, w in sizes]
+def enlargement_note(factors: list[float], height: int, width: int) -> str | None:
+    """A note when real frames are enlarged for the ``height x width`` training crop, else None;
+    ``factors``: each frame's smallest scale factor (:meth:`RealImages.enlargements`). Above 1
+    the real crops are blurrier than the generated images, and the translator learns that blur."""
     small = [f for f in factors if f > 1.0]
     if not small:
         return None
-    return (f"note: {len(small)} of {len(sizes)} real frames are smaller than the {height}x{width} training crop "
+    return (f"note: {len(small)} of {len(factors)} real frames hold less than the {height}x{width} training crop "
             f"and are enlarged (up to {max(small):.1f}x), so the translator learns their blur; give frames with a "
             f"short side of at least {height} px, or train smaller (--set data.height=... data.width=...)")
 
@@ -191,6 +189,19 @@ class RealImages:
 
     def __len__(self) -> int:
         return len(self.files)
+
+    def enlargements(self, height: int, width: int) -> list[float] | None:
+        """Each image's smallest scale factor for a ``height x width`` crop (None when the sizes
+        are unknown: a plain folder read from its index): ``max(height / h, width / w)`` for a
+        whole ``(h, w)`` image (:func:`random_resized_crop`), ``1 / k`` for a real set's frame
+        whose content mask holds at most a ``k*height x k*width`` window
+        (:meth:`~sim2real.data.cover.ValidArea.inscribed_scale`: a circular view holds less
+        than its box)."""
+        if self.sizes is None:
+            return None
+        if self.masks:
+            return [1.0 / self.valid_area(i).inscribed_scale(height, width) for i in range(len(self.files))]
+        return [max(height / h, width / w) for h, w in self.sizes]
 
     def valid_area(self, i: int) -> ValidArea | None:
         """The content mask of image ``i`` (loaded once per mask and process), None for a plain folder."""
