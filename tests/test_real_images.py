@@ -98,8 +98,8 @@ def test_frames_smaller_than_the_crop_are_named(tmp_path):
     assert pool.enlargements(256, 512) == pytest.approx([0.6, 2.56], abs=1e-3)
     note = enlargement_note(pool.enlargements(256, 512), 256, 512)
     assert note.startswith("note: 1 of 2 real frames hold less than the 256x512 training crop and are enlarged (up to 2.6x)")
-    assert enlargement_note(pool.enlargements(96, 176), 96, 176) is None  # b.png: max(0.96, 0.587) < 1
-    assert "up to 1.0x" in enlargement_note(pool.enlargements(104, 176), 104, 176)  # b.png: 1.04
+    assert enlargement_note(pool.enlargements(108, 176), 108, 176) is None  # b.png: max(1.08, 0.587) < 1.1
+    assert "up to 1.1x" in enlargement_note(pool.enlargements(112, 176), 112, 176)  # b.png: 1.12
     assert RealImages(real, verify=False).enlargements(256, 512) is None  # sizes unknown
 
 

@@ -50,16 +50,22 @@ def verify_images(files: list[Path]) -> list[tuple[int, int]]:
     return sizes
 
 
+ENLARGEMENT_NOTED = 1.1
+"""Smallest enlargement of real frames that :func:`enlargement_note` reports (10 %: below it,
+bilinear enlargement blurs less than the random scale of [1.0, 1.2] varies the crops)."""
+
+
 def enlargement_note(factors: list[float], height: int, width: int) -> str | None:
-    """A note when real frames are enlarged for the ``height x width`` training crop, else None;
-    ``factors``: each frame's smallest scale factor (:meth:`RealImages.enlargements`). Above 1
-    the real crops are blurrier than the generated images, and the translator learns that blur."""
-    small = [f for f in factors if f > 1.0]
+    """A note when real frames are enlarged by at least :data:`ENLARGEMENT_NOTED` for the
+    ``height x width`` training crop, else None; ``factors``: each frame's smallest scale factor
+    (:meth:`RealImages.enlargements`). Enlarged real crops are blurrier than the generated
+    images, and the translator learns that blur."""
+    small = [f for f in factors if f >= ENLARGEMENT_NOTED]
     if not small:
         return None
     return (f"note: {len(small)} of {len(factors)} real frames hold less than the {height}x{width} training crop "
-            f"and are enlarged (up to {max(small):.1f}x), so the translator learns their blur; give frames with a "
-            f"short side of at least {height} px, or train smaller (--set data.height=... data.width=...)")
+            f"and are enlarged (up to {max(small):.1f}x), so the translator learns their blur; give larger frames "
+            f"or train smaller (--set data.height=... data.width=...)")
 
 
 def load_rgb(path: str | os.PathLike) -> np.ndarray:
