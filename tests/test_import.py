@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 import trimesh
 
 from sim2real.cli.main import main
@@ -68,27 +69,25 @@ def test_two_workers_render_the_same_views(tmp_path, procedural_scene, procedura
     np.testing.assert_array_equal(GBuffer.load(one[0]).depth, procedural_caster.render(cams[0]).depth)
 
 
-def test_a_face_past_the_vertices_is_one_line(tmp_path, capsys):
-    obj = tmp_path / "liver.obj"
-    obj.write_text("v 0 0 0\nv 100 0 0\nv 0 100 0\nf 1 2 3\nf 1 2 4\n")  # vertex 4 does not exist
-    code = main(["scene", "import", "--mesh", f"{obj}=liver", "--camera-region", "auto", "--out", str(tmp_path / "s")])
-    err = capsys.readouterr().err
-    assert code == 2 and err.strip() == (f"sim2real: error: cannot read mesh file {obj}: "
-                                         "a face refers to a vertex the file does not have")
-    assert not (tmp_path / "s").exists()
+PLY_FACE_PAST = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                 "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                 "0 0 0\n100 0 0\n0 100 0\n3 0 1 2\n3 0 1 7\n")
 
 
-def test_a_ply_face_past_the_vertices_is_one_line(tmp_path, capsys):
-    # trimesh keeps a PLY's faces as written when it loads without processing; one pointing at
-    # vertex 7 of 3 used to fail later, inside the bounds computation, as an internal error
-    ply = tmp_path / "liver.ply"
-    ply.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                   "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
-                   "0 0 0\n100 0 0\n0 100 0\n3 0 1 2\n3 0 1 7\n")
-    code = main(["scene", "import", "--mesh", f"{ply}=liver", "--camera-region", "auto", "--out", str(tmp_path / "s")])
+@pytest.mark.parametrize("name,text,error", [
+    # vertex 4 does not exist; trimesh's OBJ reader fails on it
+    ("liver.obj", "v 0 0 0\nv 100 0 0\nv 0 100 0\nf 1 2 3\nf 1 2 4\n",
+     "cannot read mesh file {path}: a face refers to a vertex the file does not have"),
+    # trimesh keeps a PLY's faces as written (no processing): vertex 7 of 3 used to fail later,
+    # inside the bounds computation, as an internal error
+    ("liver.ply", PLY_FACE_PAST, "mesh '{path}': a face refers to vertex 7, but the mesh has 3 vertices"),
+])
+def test_a_face_past_the_vertices_is_one_line(tmp_path, capsys, name, text, error):
+    path = tmp_path / name
+    path.write_text(text)
+    code = main(["scene", "import", "--mesh", f"{path}=liver", "--camera-region", "auto", "--out", str(tmp_path / "s")])
     err = capsys.readouterr().err
-    assert code == 2 and err.strip() == (f"sim2real: error: mesh '{ply}': a face refers to vertex 7, "
-                                         "but the mesh has 3 vertices")
+    assert code == 2 and err.strip() == "sim2real: error: " + error.format(path=path)
     assert not (tmp_path / "s").exists()
 
 
