@@ -118,3 +118,8 @@ def test_a_folder_gives_its_mesh_files(tmp_path, capsys):
     code = main(["scene", "import", "--mesh", str(tmp_path / "empty"), "--camera-region", "auto", "--out", str(tmp_path / "t")])
     err = capsys.readouterr().err
     assert code == 2 and f"folder {tmp_path / 'empty'} holds no mesh files" in err and not (tmp_path / "t").exists()
+    # a pattern that matched nothing reaches the command unexpanded
+    code = main(["scene", "import", "--mesh", str(tmp_path / "empty" / "*.stl"), "--camera-region", "auto",
+                 "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.strip() == f"sim2real: error: no mesh file matches {tmp_path / 'empty' / '*.stl'}"

@@ -54,9 +54,16 @@ def mesh_files(spec: str) -> list[str]:
     return [f"{f}{eq}{cls}" for f in files]
 
 
+def _missing(path: Path) -> UserError:
+    """The error for a mesh file that is not there; a pattern the shell left unexpanded says so."""
+    if any(c in str(path) for c in "*?["):
+        return UserError(f"no mesh file matches {path}")
+    return UserError(f"mesh file {path} does not exist")
+
+
 def _read(path: Path) -> trimesh.Trimesh | trimesh.Scene:
     if not path.is_file():
-        raise UserError(f"mesh file {path} does not exist")
+        raise _missing(path)
     kwargs = {"split_objects": True, "group_material": False} if path.suffix.lower() == ".obj" else {}
     try:
         return trimesh.load(str(path), process=False, **kwargs)
@@ -84,7 +91,7 @@ def load_parts(path: str | os.PathLike) -> dict[str, trimesh.Trimesh]:
     path = Path(path)
     if path.suffix.lower() == ".blend":
         if not path.is_file():
-            raise UserError(f"mesh file {path} does not exist")
+            raise _missing(path)
         with tempfile.TemporaryDirectory(prefix="sim2real-blend-") as tmp:
             glb = Path(tmp) / f"{path.stem}.glb"
             blend_to_glb(path, glb)
