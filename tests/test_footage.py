@@ -4,6 +4,7 @@ synthetic frames and videos made here."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import av
@@ -83,6 +84,10 @@ def test_a_frame_whose_view_moved_gets_its_own_mask_and_box(tmp_path, capsys):
         # each stored frame is its own circle's box (100 px, within a few) and has no surround inside its mask
         assert abs(img.shape[0] - 100) <= 4 and abs(img.shape[1] - 100) <= 4, (f["index"], img.shape)
         assert mask.shape == img.shape[:2] and img[mask].max(axis=1).min() >= 60 * 0.9
+    # the summary names the largest 1:2 crop inside the circle: a window with its half-diagonal on
+    # a circle of diameter d = 100 (within a few) is d/sqrt(5) = 44.7 high, less the filter's reach
+    sizes = [tuple(map(int, x)) for x in re.findall(r"1:2 crops up to (\d+)x(\d+) px unenlarged", io.out)]
+    assert sizes and all(38 <= h <= 47 and w in (2 * h, 2 * h + 1) for h, w in sizes), io.out
 
 
 def _bar_frames(n: int, top: int) -> list[np.ndarray]:

@@ -15,6 +15,7 @@ train and held-out is by source. ``REAL`` is what ``--real`` of train and evalua
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from sim2real.cli.args import int_range, non_negative_float, positive_float, positive_int
 
@@ -72,8 +73,22 @@ def run(args: argparse.Namespace) -> int:
         own = f"{src['own_mask_frames']} frames with a view of their own, " if src["own_mask_frames"] else ""
         print(f"{src['id']}: {src['kind']} {src['frame_size'][1]}x{src['frame_size'][0]}, {src['shape']} view, "
               f"content {src['content_fraction']:.0%} (overlay {src['overlay_fraction']:.1%}), {own}"
-              f"{src['split']}: kept {src['kept']}, dropped {drops}")
+              f"{_largest_crop(Path(args.out), m, src)}{src['split']}: kept {src['kept']}, dropped {drops}")
     drops = ", ".join(f"{k} {v}" for k, v in m["dropped"].items())
     labelled = sum(1 for f in m["frames"] if f["label"])
     print(f"kept {m['kept']} frames ({labelled} labelled); dropped: {drops}; written to {args.out}")
     return 0
+
+
+def _largest_crop(out: Path, manifest: dict, src: dict) -> str:
+    """'1:2 crops up to HxW px unenlarged, ': the largest window of training's aspect inside the
+    content mask of every kept frame of the source, as stored (the measure of the training's
+    enlargement note, data/real.py); empty when none is kept."""
+    from sim2real.data.cover import ValidArea
+    from sim2real.data.real_manifest import load_mask, mask_file
+
+    ids = {f["mask"] for f in manifest["frames"] if f["source"] == src["id"]}
+    if not ids:
+        return ""
+    k = min(ValidArea(load_mask(out / mask_file(i))).inscribed_scale(64, 128) for i in ids)
+    return f"1:2 crops up to {int(64 * k)}x{int(128 * k)} px unenlarged, "
