@@ -183,3 +183,34 @@ def test_scene_trajectory_summarises_what_it_measured(capsys, tmp_path, scene_di
     assert motion["overlap"]["10"] is None if frames == 5 else motion["overlap"]["10"] is not None
     assert f"overlap after {k} frame{'s' if k != '1' else ''} {motion['overlap'][k]:.0%}" in io.out
     assert io.out.startswith(f"{frames} poses written to {out} (median flow ")
+
+
+def test_scene_trajectory_takes_a_calibrated_cameras_intrinsics(capsys, tmp_path, scene_dir):
+    from sim2real.render.raycast import RayCaster
+    from sim2real.scene.scene import Scene
+    from sim2real.scene.trajectory import Trajectory
+
+    out = tmp_path / "path.txt"
+    code = main(["scene", "trajectory", str(scene_dir), "--frames", "5", "--height", "64", "--width", "96",
+                 "--intrinsics", "60,64,40,30", "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    cams = Trajectory.load(out).cameras
+    for cam in cams:
+        np.testing.assert_array_equal(cam.K, [[60, 0, 40], [0, 64, 30], [0, 0, 1]])
+    # the ray caster sees through that K: a pixel's point, in the camera frame, lies at
+    # ((col + 0.5 - cx) / fx, (row + 0.5 - cy) / fy, 1) times its depth
+    g = RayCaster(Scene.load(scene_dir)).render(cams[0])
+    rows, cols = np.nonzero(g.object_id >= 0)
+    z = g.depth[rows, cols]
+    hand = np.stack([(cols + 0.5 - 40) / 60 * z, (rows + 0.5 - 30) / 64 * z, z], axis=1)
+    R, t = cams[0].world_to_camera[:3, :3], cams[0].world_to_camera[:3, 3]
+    np.testing.assert_allclose(g.points[rows, cols] @ R.T + t, hand, atol=1e-3)
+    for extra, words in ((["--intrinsics", "60,64,100,30"], "principal point (100, 30) lies outside the 96x64"),
+                         (["--intrinsics", "60,64,40"], "--intrinsics must be 4"),
+                         (["--intrinsics", "60,64,40,30", "--fov", "70"], "give --fov or --intrinsics"),
+                         (["--intrinsics", "0,64,40,30"], "positive focal lengths"),
+                         (["--intrinsics", "1,64,40,30"], "field of view of 177.5 degrees")):  # atan(40) + atan(56)
+        code = main(["scene", "trajectory", str(scene_dir), "--frames", "5", "--height", "64", "--width", "96",
+                     *extra, "--out", str(tmp_path / "bad.txt")])
+        assert_one_line_error(code, capsys.readouterr().err.strip(), words)
+

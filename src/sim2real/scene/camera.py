@@ -51,6 +51,22 @@ def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> np.ndarray
     return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
 
 
+def intrinsics_from_values(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """Pinhole K of a calibrated camera (pixels of a ``width x height`` image): focal lengths
+    ``fx``, ``fy`` and the principal point (``cx``, ``cy``) inside the image, its horizontal
+    field of view in :data:`FOV_RANGE_DEG`. Lens distortion is not modelled."""
+    check_size(height, width)
+    if not all(math.isfinite(v) for v in (fx, fy, cx, cy)) or fx <= 0 or fy <= 0:
+        raise UserError(f"intrinsics need positive focal lengths, got fx {fx:g}, fy {fy:g}")
+    if not (0 < cx < width and 0 < cy < height):
+        raise UserError(f"the principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} image")
+    fov = math.degrees(math.atan(cx / fx) + math.atan((width - cx) / fx))
+    lo, hi = FOV_RANGE_DEG
+    if not lo <= fov <= hi:
+        raise UserError(f"the intrinsics give a horizontal field of view of {fov:.1f} degrees, outside [{lo:g}, {hi:g}]")
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
 def check_fov(fov_x_deg: float) -> None:
     """Refuse a horizontal field of view outside :data:`FOV_RANGE_DEG`."""
     lo, hi = FOV_RANGE_DEG

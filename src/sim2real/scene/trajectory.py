@@ -188,7 +188,7 @@ def make_trajectory(
     caster, frames: int = 100, height: int = 256, width: int = 512, fov_x_deg: float = 75.0,
     seed: int = 0, keys: int = 5, fps: float = 5.0, max_tries: int = 50,
     flow_budget: float | None = DEFAULT_FLOW_BUDGET, max_deg_per_frame: float | None = DEFAULT_MAX_DEG_PER_FRAME,
-    look: str = "smooth",
+    look: str = "smooth", K: np.ndarray | None = None,
 ) -> Trajectory:
     """A smooth camera path that pans across the liver with varying distance.
 
@@ -204,6 +204,8 @@ def make_trajectory(
     median flow and ``max_deg_per_frame`` in rotation. A path longer than the budget allows is cut
     to its middle part; a shorter one runs slower. ``None`` for both: the spline is sampled
     uniformly (the old behaviour). The result carries its measured motion (``Trajectory.motion``).
+    ``K``: the cameras' intrinsics (e.g. a calibrated endoscope's,
+    :func:`~sim2real.scene.camera.intrinsics_from_values`) instead of ``fov_x_deg``'s.
     """
     if frames < 2:
         raise UserError(f"a trajectory needs at least 2 frames, got {frames}")
@@ -213,7 +215,7 @@ def make_trajectory(
         if v is not None and not (np.isfinite(v) and v > 0):
             raise UserError(f"the {name} must be positive, got {v}")
     scene = caster.scene
-    K = intrinsics_from_fov(width, height, fov_x_deg)
+    K = intrinsics_from_fov(width, height, fov_x_deg) if K is None else np.asarray(K, np.float64)
     rng = np.random.default_rng(seed)
     targets, liver = _liver_targets(caster)
     for _ in range(max_tries):
