@@ -175,9 +175,9 @@ def run(args: argparse.Namespace) -> int:
                       progress=not args.no_progress, resume_state=state, init_from=args.init_from,
                       init_state=init_state)
     try:
-        factors = trainer.real.enlargements(cfg.data.height, cfg.data.width) if state is None else None
-        if factors and trainer.dist.is_main:
-            note = enlargement_note(factors, cfg.data.height, cfg.data.width)
+        if state is None and trainer.dist.is_main:  # once per run, on its first start
+            factors = trainer.real.enlargements(cfg.data.height, cfg.data.width)
+            note = enlargement_note(factors, cfg.data.height, cfg.data.width) if factors else None
             if note:
                 print(note, flush=True)
         if changes and trainer.dist.is_main:

@@ -37,6 +37,7 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
     fid_info = {"n_real": len(real_imgs), "n_gen": len(gen), "kid_subset_size": None, "kid_subsets": s.kid_subsets,
                 "weights": status.get("path"), "variants": list(vs.variants)}
     ref, held = real_halves(real_imgs, s.seed)
+    ref_t, held_t = (to_nchw(ref), to_nchw(held)) if ref and held else (None, None)
     fid_real = {"fid": None, "kid": None}  # FID/KID's real row: one half of the real images against the other
     if inception is None:
         reason = status["reason"]
@@ -52,8 +53,7 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
         say(f"FID/KID: Inception features of {len(real_imgs)} real and {len(gen)} images per row")
         for row in rows_shown:
             r = scores(to_nchw(vs.scored[row]), real_t)
-            vals = {"fid": r["fid"], "kid_mean": r["kid_mean"], "kid_std": r["kid_std"]}
-            vals = {k: (v if np.isfinite(v) else None) for k, v in vals.items()}
+            vals = _finite({"fid": r["fid"], "kid_mean": r["kid_mean"], "kid_std": r["kid_std"]})
             realism[row].update(fid=vals["fid"], kid=vals["kid_mean"])
             if row == "model":
                 fid = vals
@@ -62,9 +62,8 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
                 if bad:
                     reason = f"{', '.join(bad)} not finite (too few images for a {r['num_features']}-d covariance?)"
         if len(ref) >= 2 and len(held) >= 2:
-            r = scores(to_nchw(held), to_nchw(ref))
-            fid_real = {"fid": r["fid"], "kid": r["kid_mean"]}
-            fid_real = {k: (v if np.isfinite(v) else None) for k, v in fid_real.items()}
+            r = scores(held_t, ref_t)
+            fid_real = _finite({"fid": r["fid"], "kid": r["kid_mean"]})
     proxy = None
     real_stats = proxy_stats(real_t)  # once for every row
     for row in rows_shown:
@@ -76,8 +75,8 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
         g_real = p["proxy_grad_mean_real"]
         realism[row]["detail"] = p["proxy_grad_mean_gen"] / g_real if g_real > 0 else None
     # the proxy's scale: what real frames score, one half of the real images against the other
-    proxy_real = (proxy_colour_texture_distance(to_nchw(held), to_nchw(ref))["proxy_colour_texture_distance"]
-                  if ref and held else None)
+    proxy_real = (proxy_colour_texture_distance(held_t, ref_t)["proxy_colour_texture_distance"]
+                  if held_t is not None else None)
     measures = weight_free_realism(vs.scored, real_imgs, s, rows_shown, device, say)
     for name, m in measures.items():
         for row in rows_shown:
@@ -85,6 +84,11 @@ def realism_stage(vs: ViewSet, real_imgs: Sequence[np.ndarray], inception, statu
     real_row = {**fid_real, "proxy": proxy_real}
     return {"rows": realism, "fid": fid, "fid_info": fid_info, "proxy": proxy, "real_held_out": real_row,
             "reason": reason, "measures": measures}
+
+
+def _finite(values: dict) -> dict:
+    """Non-finite values (a covariance of too few images) -> None."""
+    return {k: (v if np.isfinite(v) else None) for k, v in values.items()}
 
 
 def device_type(device) -> str:

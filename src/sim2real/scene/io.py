@@ -77,10 +77,11 @@ def _as_trimesh(geom, label: str) -> trimesh.Trimesh:
     if not isinstance(geom, trimesh.Trimesh):
         raise UserError(f"mesh '{label}' is not a triangle mesh (found {type(geom).__name__})")
     faces = np.asarray(geom.faces)
-    if faces.size and (faces.min() < 0 or faces.max() >= len(geom.vertices)):
-        # trimesh keeps such faces when it loads without processing (PLY, OFF); bounds and
-        # normals would then fail with an IndexError
-        bad = int(faces.max()) if faces.max() >= len(geom.vertices) else int(faces.min())
+    # trimesh keeps faces past the vertices when it loads without processing (PLY, OFF); bounds
+    # and normals would then fail with an IndexError
+    lo, hi = (int(faces.min()), int(faces.max())) if faces.size else (0, 0)
+    if faces.size and (lo < 0 or hi >= len(geom.vertices)):
+        bad = hi if hi >= len(geom.vertices) else lo
         raise UserError(f"mesh '{label}': a face refers to vertex {bad}, but the mesh has {len(geom.vertices)} vertices")
     return geom
 
