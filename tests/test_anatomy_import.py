@@ -53,6 +53,7 @@ def test_metre_scale_meshes_are_refused_naming_the_unit_and_import_with_units_m(
     code, io = cli(capsys, "scene", "import", "--mesh", liver_m, "--mesh", wall_m, "--camera-region", "0,0,90,5,5,5",
                    "--units", "m", "--out", out)
     assert code == 0, io.err
+    assert "(2 objects: " in io.out
     scene = Scene.load(out)
     assert json.loads((out / "scene.json").read_text())["source_units"] == "m"
     liver = scene.objects[scene.objects_of("liver")[0]].mesh

@@ -214,3 +214,9 @@ def test_scene_trajectory_takes_a_calibrated_cameras_intrinsics(capsys, tmp_path
                      *extra, "--out", str(tmp_path / "bad.txt")])
         assert_one_line_error(code, capsys.readouterr().err.strip(), words)
 
+
+
+def test_counts_are_written_with_their_noun_in_the_right_number():
+    from sim2real.cli.args import counted
+
+    assert [counted(n, "frame") for n in (0, 1, 2)] == ["0 frames", "1 frame", "2 frames"]

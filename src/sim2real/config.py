@@ -132,7 +132,13 @@ class DataConfig:
     [real_scale_min, real_scale_max], then randomly cropped to height x width."""
     real_scale_max: float = 1.2
     fov_x_deg: float = 75.0
-    """Horizontal field of view of random simulated views rendered on the fly."""
+    """Horizontal field of view of random simulated views rendered on the fly (a square-pixel
+    camera with the principal point at the image centre)."""
+    intrinsics: list[float] | None = None
+    """A calibrated endoscope's pinhole intrinsics ``[fx, fy, cx, cy]``, in pixels of
+    height x width, for every random view (training, view pools, the evaluation's views and
+    trajectories) instead of ``fov_x_deg``'s; null: ``fov_x_deg``. Lens distortion is not
+    modelled: give the intrinsics of undistorted frames (docs/own-data.md)."""
     workers: int = -1
     """DataLoader worker processes (ray casting and image decoding happen there); 0 loads in
     the training process. -1 (automatic): the project's worker rule
@@ -307,6 +313,9 @@ def from_dict(cls: type, data: dict, where: str = "", sections: Mapping[str, typ
     return cls(**kwargs)
 
 
+_NUMBERS = list[float] | None  # an optional list of numbers (data.intrinsics)
+
+
 def _coerce(value: Any, hint: Any, key: str) -> Any:
     try:
         if hint is bool:
@@ -325,8 +334,15 @@ def _coerce(value: Any, hint: Any, key: str) -> Any:
             return float(value)
         if hint is str:
             return str(value)
+        if hint == _NUMBERS:
+            if value is None or value == "":
+                return None
+            if not isinstance(value, (list, tuple)) or any(isinstance(v, bool) for v in value):
+                raise ValueError(value)
+            return [float(v) for v in value]
     except (TypeError, ValueError):
-        raise UserError(f"config key '{key}' expects {hint.__name__}, got {value!r}") from None
+        expects = "a list of numbers or null" if hint == _NUMBERS else hint.__name__
+        raise UserError(f"config key '{key}' expects {expects}, got {value!r}") from None
     return value
 
 

@@ -18,7 +18,7 @@ from sim2real.methods import METHOD_CONFIGS
 from sim2real.models.discriminator import min_input_side as dis_min_side
 from sim2real.models.layers import NORMS, PADS
 from sim2real.models.translator import min_input_side as gen_min_side
-from sim2real.scene.camera import FOV_RANGE_DEG, check_size
+from sim2real.scene.camera import FOV_RANGE_DEG, check_size, view_intrinsics
 
 
 def validate(cfg: TrainConfig) -> None:
@@ -80,6 +80,11 @@ def validate(cfg: TrainConfig) -> None:
     lo, hi = FOV_RANGE_DEG
     need(lo <= dat.fov_x_deg <= hi, "data.fov_x_deg", f"in [{lo:g}, {hi:g}] degrees", dat.fov_x_deg)
     check_size(dat.height, dat.width)
+    if dat.intrinsics is not None:
+        try:
+            view_intrinsics(dat.width, dat.height, dat.fov_x_deg, dat.intrinsics)
+        except UserError as e:
+            raise UserError(f"data.intrinsics (pixels of {dat.height}x{dat.width}): {e}") from None
     if type(cfg.method).name not in METHOD_CONFIGS:
         raise UserError(f"unknown method '{type(cfg.method).name}'")
     cfg.method.check(cfg, need)

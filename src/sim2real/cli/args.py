@@ -24,6 +24,11 @@ def int_range(low: int, high: int | None = None):
     return parse
 
 
+def counted(n: int, noun: str) -> str:
+    """``n`` and ``noun``, plural unless ``n`` is 1: "1 object", "3 objects"."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 positive_int = int_range(1)
 non_negative_int = int_range(0)
 

@@ -84,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.inference.translate import trajectory_source, translate_sequence
     from sim2real.metrics.realism import fid_weights_status
     from sim2real.render.raycast import RayCaster
+    from sim2real.scene.camera import view_intrinsics
     from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import make_trajectory
     from sim2real.validation import validate
@@ -130,8 +131,9 @@ def run(args: argparse.Namespace) -> int:
 
     print("demo: 4/5 translating the test trajectory", flush=True)
     traj_path = out / "trajectory.txt"
-    make_trajectory(RayCaster(Scene.load(sim_dirs[0])), args.frames, h, w, cfg.data.fov_x_deg,
-                    seed=args.seed, **motion_kwargs(args)).save(traj_path)
+    K = view_intrinsics(w, h, cfg.data.fov_x_deg, cfg.data.intrinsics)
+    make_trajectory(RayCaster(Scene.load(sim_dirs[0])), args.frames, h, w, seed=args.seed, K=K,
+                    **motion_kwargs(args)).save(traj_path)
     model = load_run(out / "run", device=args.device)
     translate_sequence(model, trajectory_source(model, sim_dirs[0], traj_path), out / "video")
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sim2real.cli.args import int_range, non_negative_float, positive_float, positive_int
+from sim2real.cli.args import counted, int_range, non_negative_float, positive_float, positive_int
 
 
 def _fraction(text: str) -> float:
@@ -70,13 +70,13 @@ def run(args: argparse.Namespace) -> int:
     m = build_realset(args.sources, args.out, settings, progress=not args.quiet)
     for src in m["sources"]:
         drops = ", ".join(f"{k} {v}" for k, v in src["dropped"].items() if v) or "none"
-        own = f"{src['own_mask_frames']} frames with a view of their own, " if src["own_mask_frames"] else ""
+        own = f"{counted(src['own_mask_frames'], 'frame')} with a view of their own, " if src["own_mask_frames"] else ""
         print(f"{src['id']}: {src['kind']} {src['frame_size'][1]}x{src['frame_size'][0]}, {src['shape']} view, "
               f"content {src['content_fraction']:.0%} (overlay {src['overlay_fraction']:.1%}), {own}"
               f"{_largest_crop(Path(args.out), m, src)}{src['split']}: kept {src['kept']}, dropped {drops}")
     drops = ", ".join(f"{k} {v}" for k, v in m["dropped"].items())
     labelled = sum(1 for f in m["frames"] if f["label"])
-    print(f"kept {m['kept']} frames ({labelled} labelled); dropped: {drops}; written to {args.out}")
+    print(f"kept {counted(m['kept'], 'frame')} ({labelled} labelled); dropped: {drops}; written to {args.out}")
     return 0
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import itertools
 
-from sim2real.cli.args import non_negative_float, non_negative_int, positive_float, positive_int
+from sim2real.cli.args import counted, non_negative_float, non_negative_int, positive_float, positive_int
 
 
 def register(sub) -> None:
@@ -65,5 +65,5 @@ def run(args: argparse.Namespace) -> int:
               f"{int((share > max_bg).sum())} of {count} views above {max_bg:.0%}")
     elif caster.skipped_background:
         print(f"{caster.skipped_background} random views skipped: more than {max_bg:.0%} background (escaping rays)")
-    print(f"{count} views of '{scene.name}' written to {out}")
+    print(f"{counted(count, 'view')} of '{scene.name}' written to {out}")
     return 0

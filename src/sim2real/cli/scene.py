@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import add_motion_args, motion_kwargs, non_negative_int, positive_float, positive_int
+from sim2real.cli.args import add_motion_args, counted, motion_kwargs, non_negative_int, positive_float, positive_int
 from sim2real.errors import UserError
 from sim2real.scene.conventions import DEFAULT_CREASE_DEG, UNITS
 
@@ -84,7 +84,7 @@ def _generate(args: argparse.Namespace) -> int:
 
     scene = generate_scene(args.seed, args.name)
     scene.save(args.out)
-    print(f"scene '{scene.name}' ({len(scene.objects)} objects) written to {args.out}")
+    print(f"scene '{scene.name}' ({counted(len(scene.objects), 'object')}) written to {args.out}")
     return 0
 
 
@@ -94,7 +94,8 @@ def _import(args: argparse.Namespace) -> int:
 
     scene = import_scene(args)
     r = scene.camera_region
-    print(f"scene '{scene.name}' ({len(scene.objects)} objects: {', '.join(scene.classes)}; camera region centre "
+    print(f"scene '{scene.name}' ({counted(len(scene.objects), 'object')}: {', '.join(scene.classes)}; "
+          f"camera region centre "
           f"{', '.join(f'{x:.1f}' for x in r.center)} radii {', '.join(f'{x:.1f}' for x in r.radii)} mm) "
           f"written to {args.out}")
     return 0

@@ -55,6 +55,7 @@ from sim2real.methods import get_method
 from sim2real.metrics.realism import fid_weights_status
 from sim2real.presets import METHOD_PRESETS, budgeted, config_from_dict, default_preset
 from sim2real.render.raycast import RayCaster
+from sim2real.scene.camera import view_intrinsics
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import make_trajectory
 from sim2real.threads import usable_cores
@@ -321,8 +322,10 @@ def run_benchmark(out, s: BenchmarkSettings, scenes=None, real=None, trajectorie
             path = out / "trajectories" / f"scene_{k}.txt"
             if not path.is_file():
                 _say(f"test trajectory of {Scene.load(d).name}")
-                make_trajectory(RayCaster(Scene.load(d)), s.frames, cfg0.data.height, cfg0.data.width,
-                                cfg0.data.fov_x_deg, seed=s.seed + k, **s.trajectory).save(path)
+                dat = cfg0.data
+                make_trajectory(RayCaster(Scene.load(d)), s.frames, dat.height, dat.width, seed=s.seed + k,
+                                K=view_intrinsics(dat.width, dat.height, dat.fov_x_deg, dat.intrinsics),
+                                **s.trajectory).save(path)
             trajectories.append(path)
     eval_scenes = sim[: len(trajectories)]
     metrics = {}

@@ -55,6 +55,7 @@ from sim2real.render.gbuffer import GBuffer
 from sim2real.render.raycast import RayCaster
 from sim2real.render.warp import correspondences
 from sim2real.scene.scene import Scene
+from sim2real.scene.camera import view_intrinsics
 from sim2real.scene.trajectory import MAX_BACKGROUND, sample_poses
 
 PAIR_TRIES = 10
@@ -99,6 +100,8 @@ class TrainPairs(torch.utils.data.Dataset):
         self.sources = sources
         self.real = real
         self.cfg = cfg
+        self.K = view_intrinsics(cfg.width, cfg.height, cfg.fov_x_deg, cfg.intrinsics)
+        """The intrinsics of fresh random views (``data.intrinsics`` or ``data.fov_x_deg``)."""
         self.seed = int(seed)
         self.rank = int(rank)
         self._casters: dict = {}
@@ -176,7 +179,7 @@ class TrainPairs(torch.utils.data.Dataset):
         caster = self._caster(src)
         c = self.cfg
         before = caster.skipped_background
-        cam = sample_poses(caster, 1, c.height, c.width, c.fov_x_deg, seed=int(rng.integers(0, 2**31)))[0]
+        cam = sample_poses(caster, 1, c.height, c.width, c.fov_x_deg, seed=int(rng.integers(0, 2**31)), K=self.K)[0]
         after = caster.skipped_background
         if after > before and any(before < m <= after for m in (1, 10, 100, 1000, 10000)):  # a few lines, not one per view
             print(f"scene '{src.name}': {after} random views skipped so far in this loader process "

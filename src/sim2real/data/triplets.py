@@ -54,7 +54,7 @@ class TrainTriplets(TrainPairs):
         k = int(rng.integers(0, len(self.sources)))
         caster = self._caster(self.sources[k])
         c = self.cfg
-        cams = linear_path(caster, FRAMES, c.height, c.width, c.fov_x_deg, c.path_step_mm, rng)
+        cams = linear_path(caster, FRAMES, c.height, c.width, c.fov_x_deg, c.path_step_mm, rng, K=self.K)
         frames = [caster.render(cam) for cam in cams]
         out = {"step": torch.tensor(int(step)), "scene": torch.tensor(k)}
         for t, g in enumerate(frames):

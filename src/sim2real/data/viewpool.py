@@ -62,7 +62,7 @@ from sim2real.fileio import atomic_write_json, cache_root, fsync_files, read_jso
 from sim2real.pool import WorkerPool
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.raycast import RayCaster
-from sim2real.scene.camera import intrinsics_from_fov
+from sim2real.scene.camera import view_intrinsics
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import MAX_BACKGROUND, sample_poses
 from sim2real.threads import worker_count
@@ -116,11 +116,18 @@ def pose_seed(seed: int, scene_name: str, index: int) -> int:
     return int(np.random.SeedSequence([int(seed), name, int(index)]).generate_state(1, np.uint64)[0])
 
 
-def pool_camera(caster: RayCaster, seed: int, scene_name: str, index: int, height: int, width: int,
-                fov_x_deg: float):
-    """Pose ``index`` of the pool: a random training pose (:func:`sample_poses`' rules) drawn from
-    :func:`pose_seed` alone."""
-    return sample_poses(caster, 1, height, width, fov_x_deg, seed=pose_seed(seed, scene_name, index))[0]
+def pool_camera(caster: RayCaster, spec: dict, index: int):
+    """Pose ``index`` of the pool of ``spec`` (:func:`pool_spec`): a random training pose
+    (:func:`sample_poses`' rules) drawn from :func:`pose_seed` alone, with the spec's intrinsics
+    (``intrinsics`` where it has them, else ``fov_x_deg``'s)."""
+    h, w = spec["height"], spec["width"]
+    return sample_poses(caster, 1, h, w, spec["fov_x_deg"], seed=pose_seed(spec["seed"], spec["scene"], index),
+                        K=pool_intrinsics(spec))[0]
+
+
+def pool_intrinsics(spec: dict) -> np.ndarray:
+    """The K of every view of the pool of ``spec``."""
+    return view_intrinsics(spec["width"], spec["height"], spec["fov_x_deg"], spec.get("intrinsics"))
 
 
 def pool_spec(scene_dir: str | os.PathLike, scene_name: str, cfg: DataConfig, seed: int) -> dict:
@@ -129,10 +136,13 @@ def pool_spec(scene_dir: str | os.PathLike, scene_name: str, cfg: DataConfig, se
         embree = metadata.version("embreex")
     except metadata.PackageNotFoundError:  # pragma: no cover - embreex is a dependency
         embree = "unknown"
-    return {"format": POOL_FORMAT, "scene": scene_name, "scene_sha256": scene_digest(scene_dir),
+    spec = {"format": POOL_FORMAT, "scene": scene_name, "scene_sha256": scene_digest(scene_dir),
             "height": int(cfg.height), "width": int(cfg.width), "fov_x_deg": float(cfg.fov_x_deg),
             "views": int(cfg.view_pool), "seed": int(seed), "max_background": MAX_BACKGROUND,
             "sim2real": __version__, "embreex": embree}
+    if cfg.intrinsics is not None:  # only then, so the pools cached without it keep their keys
+        spec["intrinsics"] = [float(v) for v in cfg.intrinsics]
+    return spec
 
 
 def pool_folder(spec: dict) -> Path:
@@ -151,7 +161,7 @@ class ViewPool:
     def __init__(self, spec: dict, scene_dir: Path, classes: tuple[str, ...], class_table, folder: Path | None):
         self.spec, self.scene_dir, self.classes, self.class_table = spec, Path(scene_dir), classes, class_table
         self.folder = None if folder is None else Path(folder)
-        self.K = intrinsics_from_fov(spec["width"], spec["height"], spec["fov_x_deg"])
+        self.K = pool_intrinsics(spec)
         self._arrays = None
         self._caster = None
         self._pid = os.getpid()
@@ -182,8 +192,7 @@ class ViewPool:
     def _recast(self, k: int) -> GBuffer:
         if self._caster is None or self._pid != os.getpid():  # never a forked parent's Embree objects
             self._caster, self._pid = RayCaster(Scene.load(self.scene_dir)), os.getpid()
-        s = self.spec
-        cam = pool_camera(self._caster, s["seed"], s["scene"], k, s["height"], s["width"], s["fov_x_deg"])
+        cam = pool_camera(self._caster, self.spec, k)
         return self._caster.render(cam)
 
 
@@ -233,9 +242,8 @@ def _build_view(state: _Builder, k: int) -> tuple[int, np.ndarray, int]:
     skipped for background)."""
     if state.gbuffers is None:
         state.gbuffers = np.load(state.path, mmap_mode="r+")
-    s = state.spec
     before = state.caster.skipped_background
-    cam = pool_camera(state.caster, s["seed"], s["scene"], k, s["height"], s["width"], s["fov_x_deg"])
+    cam = pool_camera(state.caster, state.spec, k)
     g = state.caster.render(cam)
     slot = state.gbuffers[k]
     for name in ("depth", "distance", "normal", "points", "object_id"):

@@ -63,6 +63,7 @@ from sim2real.inference.model import load_run
 from sim2real.metrics.inception import load_fid_inception
 from sim2real.metrics.realism import fid_weights_status
 from sim2real.render.raycast import RayCaster
+from sim2real.scene.camera import view_intrinsics
 from sim2real.scene.scene import Scene
 from sim2real.scene.trajectory import Trajectory
 
@@ -160,15 +161,18 @@ def evaluate(run: str | os.PathLike, scene_dirs: Sequence[str | os.PathLike], re
     run_info = {"dir": str(Path(run).resolve()), "checkpoint": str(model.checkpoint.resolve()), "step": model.step,
                 "method": model.method.name, "device": str(model.device), "amp_bf16": model.amp,
                 "compiled": model.compiled, "train_height": H, "train_width": W}
-    return run_stages(model, scenes, trajs, trajectories, real, out, s, fid_weights, (H, W, model.cfg.data.fov_x_deg),
-                      run_info, progress, t_start)
+    d = model.cfg.data
+    K = view_intrinsics(W, H, d.fov_x_deg, d.intrinsics)
+    return run_stages(model, scenes, trajs, trajectories, real, out, s, fid_weights, (H, W, K), run_info, progress,
+                      t_start)
 
 
 def run_stages(model, scenes: list, trajs, trajectory_files, real, out, s: EvalSettings, fid_weights,
-               size: tuple[int, int, float], run_info: dict, progress: bool, t_start: float,
+               size: tuple, run_info: dict, progress: bool, t_start: float,
                view_cameras: dict | None = None, view_index: list[int] | None = None) -> dict:
     """The evaluation of ``model`` (a trained run, or any object with its ``translate_views``,
     ``sequence``, ``time_independent`` and ``device``) on checked inputs: the stages, in order.
+    ``size``: (H, W, K), the views' size and 3x3 intrinsics.
     ``view_cameras`` (scene name -> cameras) replaces the random views, ``view_index`` their anchor
     frame indices."""
     say = stderr_say(progress)

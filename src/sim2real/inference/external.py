@@ -108,10 +108,9 @@ def evaluate_frames(frames: str | os.PathLike, scene_dir: str | os.PathLike, tra
     sc = Scene.load(scene_dir)
     idx = sorted({int(round(x)) for x in np.linspace(0, len(cams) - 1, min(s.views, len(cams)))})
     model = VideoAsModel(video, [video[i] for i in idx], resolve_device(device))
-    fov = float(np.degrees(2 * np.arctan(W / (2 * cams[0].K[0, 0]))))
     run_info = {"dir": None, "frames": str(Path(frames).resolve()), "checkpoint": None, "step": None,
                 "method": "a given video", "device": str(model.device), "amp_bf16": False, "compiled": False,
                 "train_height": H, "train_width": W}
     return run_stages(model, [(sc, Path(scene_dir).resolve())], [traj], [trajectory], real, out, s, fid_weights,
-                      (H, W, fov), run_info, progress, t_start, view_cameras={sc.name: [cams[i] for i in idx]},
+                      (H, W, cams[0].K), run_info, progress, t_start, view_cameras={sc.name: [cams[i] for i in idx]},
                       view_index=idx)

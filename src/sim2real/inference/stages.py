@@ -64,14 +64,14 @@ class ViewSet:
 
 
 def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, real_imgs: Sequence[np.ndarray], s,
-                rows_shown: Sequence[str], size: tuple[int, int, float], progress: bool = True,
+                rows_shown: Sequence[str], size: tuple, progress: bool = True,
                 cameras: dict | None = None, view_index: Sequence[int] | None = None) -> ViewSet:
     """Translate ``s.views`` random views (spread evenly over ``scenes``, pairs ``(Scene, dir)``),
     with a_ref and, when ``anchors`` has the scene, the ceiling and the floor of each view.
-    ``size`` = (H, W, horizontal field of view in degrees); real images are the style sources.
+    ``size`` = (H, W, K: the views' 3x3 intrinsics); real images are the style sources.
     ``cameras`` (scene name -> cameras) gives the views instead of random ones, and
     ``view_index`` the anchor frame index of each (default: :data:`VIEW_INDEX0` + i)."""
-    H, W, fov = size
+    H, W, K = size
     variants: dict[str, list] = {}
     style_rng = np.random.default_rng((s.seed, 1))
     if cameras is not None:
@@ -87,7 +87,7 @@ def views_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, re
         if n == 0:
             continue
         caster = casters[sc.name]
-        cams = cameras[sc.name] if cameras is not None else sample_poses(caster, n, H, W, fov, seed=s.seed + 1000 * k)
+        cams = cameras[sc.name] if cameras is not None else sample_poses(caster, n, H, W, None, seed=s.seed + 1000 * k, K=K)
         for chunk in chunked(iter_gbuffers(d, cams, s.workers, s.batch, caster=caster), s.batch):
             styles = [real_imgs[int(i)] for i in style_rng.integers(0, len(real_imgs), len(chunk))]
             for name, frames in model.translate_views(sc.name, chunk, styles, s.seed + len(liver), s.batch).items():
@@ -158,12 +158,12 @@ def segmentation_stage(real_set, vs: ViewSet, s, device, rows_shown: Sequence[st
 
 
 def consistency_stage(model, scenes: Sequence[tuple], casters: dict, anchors: dict, s, rows_shown: Sequence[str],
-                      out: Path, size: tuple[int, int, float], trajs=None, trajectory_files=None,
+                      out: Path, size: tuple, trajs=None, trajectory_files=None,
                       progress: bool = True) -> dict:
     """Each scene's trajectory (given, or generated with ``s.frames`` frames) translated and
     scored for every row; the videos are written under ``out/videos``. Returns
     ``{"per_scene", "samples" (scene -> row -> frames), "inputs" (per scene), "orb_settings", "ks"}``."""
-    H, W, fov = size
+    H, W, K = size
     per_scene: dict[str, dict] = {}
     seq_samples: dict[str, dict] = {}
     inputs_scenes = []
@@ -173,7 +173,7 @@ def consistency_stage(model, scenes: Sequence[tuple], casters: dict, anchors: di
         if trajs is not None:
             traj = trajs[k]
         else:
-            traj = make_trajectory(casters[sc.name], s.frames, H, W, fov, seed=s.seed + k, **(s.trajectory or {}))
+            traj = make_trajectory(casters[sc.name], s.frames, H, W, seed=s.seed + k, K=K, **(s.trajectory or {}))
         res, frames = sequence_metrics(model, sc.name, d, traj.cameras, casters[sc.name], anchors.get(sc.name), s, ks,
                                        orb, rows_shown, progress)
         res["trajectory"] = {"file": str(Path(trajectory_files[k]).resolve()) if trajectory_files is not None else None,

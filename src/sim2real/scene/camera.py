@@ -67,6 +67,17 @@ def intrinsics_from_values(width: int, height: int, fx: float, fy: float, cx: fl
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
+def view_intrinsics(width: int, height: int, fov_x_deg: float, values=None) -> np.ndarray:
+    """The K of random views: a calibrated camera's ``values`` (fx, fy, cx, cy in pixels of
+    ``width x height``, :func:`intrinsics_from_values`) where given, else the centred square-pixel
+    K of ``fov_x_deg`` (:func:`intrinsics_from_fov`)."""
+    if values is None:
+        return intrinsics_from_fov(width, height, fov_x_deg)
+    if len(values) != 4:
+        raise UserError(f"intrinsics are four numbers fx, fy, cx, cy, got {len(values)}")
+    return intrinsics_from_values(width, height, *(float(v) for v in values))
+
+
 def check_fov(fov_x_deg: float) -> None:
     """Refuse a horizontal field of view outside :data:`FOV_RANGE_DEG`."""
     lo, hi = FOV_RANGE_DEG

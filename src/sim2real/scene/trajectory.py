@@ -33,7 +33,8 @@ from scipy.interpolate import CubicSpline
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_json, atomic_write_text, read_json_or_none
 from sim2real.render.motion import measure, pair_flow_px, rotation_deg
-from sim2real.scene.camera import Camera, intrinsics_from_fov, invert_rigid, look_at, rotation_to_quaternion
+from sim2real.scene.camera import (Camera, intrinsics_from_fov, intrinsics_from_values, invert_rigid, look_at,
+                                   rotation_to_quaternion)
 from sim2real.scene.conventions import DEFAULT_FLOW_BUDGET, DEFAULT_MAX_DEG_PER_FRAME, LOOKS
 from sim2real.scene.tum import read_tum
 
@@ -52,19 +53,21 @@ def _liver_targets(caster) -> tuple[np.ndarray, int]:
     return (v[front] if front.any() else v), k
 
 
-def sample_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed: int, max_tries: int = 200,
-                 max_background: float = MAX_BACKGROUND) -> list[Camera]:
-    """``n`` random training views of ``caster.scene`` (see module docstring)."""
-    return list(iter_poses(caster, n, height, width, fov_x_deg, seed, max_tries, max_background))
+def sample_poses(caster, n: int, height: int, width: int, fov_x_deg: float | None, seed: int, max_tries: int = 200,
+                 max_background: float = MAX_BACKGROUND, K: np.ndarray | None = None) -> list[Camera]:
+    """``n`` random training views of ``caster.scene`` (see module docstring). ``K``: the
+    cameras' intrinsics instead of ``fov_x_deg``'s (as in :func:`make_trajectory`)."""
+    return list(iter_poses(caster, n, height, width, fov_x_deg, seed, max_tries, max_background, K))
 
 
-def iter_poses(caster, n: int, height: int, width: int, fov_x_deg: float, seed: int,
-               max_tries: int = 200, max_background: float = MAX_BACKGROUND) -> Iterator[Camera]:
+def iter_poses(caster, n: int, height: int, width: int, fov_x_deg: float | None, seed: int,
+               max_tries: int = 200, max_background: float = MAX_BACKGROUND,
+               K: np.ndarray | None = None) -> Iterator[Camera]:
     """The cameras of :func:`sample_poses`, one at a time (a renderer draws them as it goes).
     The arguments are checked now, not at the first camera."""
     if n < 1:
         raise UserError(f"the number of views must be at least 1, got {n}")
-    K = intrinsics_from_fov(width, height, fov_x_deg)
+    K = _intrinsics(width, height, fov_x_deg, K)
     return _poses(caster, n, K, height, width, np.random.default_rng(seed), max_tries, max_background)
 
 
@@ -95,14 +98,22 @@ def _poses(caster, n: int, K: np.ndarray, height: int, width: int, rng: np.rando
                             f"{max_background:.0%} background; check its camera region")
 
 
+def _intrinsics(width: int, height: int, fov_x_deg: float | None, K: np.ndarray | None) -> np.ndarray:
+    """``K`` where given (checked against the image size), else the K of ``fov_x_deg``."""
+    if K is None:
+        return intrinsics_from_fov(width, height, fov_x_deg)
+    K = np.asarray(K, np.float64)
+    return intrinsics_from_values(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+
+
 def linear_path(caster, frames: int, height: int, width: int, fov_x_deg: float, step_mm: float,
-                rng: np.random.Generator, max_tries: int = 200) -> list[Camera]:
+                rng: np.random.Generator, max_tries: int = 200, K: np.ndarray | None = None) -> list[Camera]:
     """A short random linear camera path (ReCycle's and OF-UNIT's training triplets, paper
     supplementary): a random training pose (:func:`sample_poses`' rules) whose eye and look-at
     point both move ``step_mm`` per frame along one random direction, so the view pans without
     turning. Every eye stays in free space; the path is redrawn otherwise."""
     scene = caster.scene
-    K = intrinsics_from_fov(width, height, fov_x_deg)
+    K = _intrinsics(width, height, fov_x_deg, K)
     for _ in range(max_tries):
         first = next(_poses(caster, 1, K, height, width, rng, max_tries))
         c2w = first.camera_to_world
@@ -215,7 +226,7 @@ def make_trajectory(
         if v is not None and not (np.isfinite(v) and v > 0):
             raise UserError(f"the {name} must be positive, got {v}")
     scene = caster.scene
-    K = intrinsics_from_fov(width, height, fov_x_deg) if K is None else np.asarray(K, np.float64)
+    K = _intrinsics(width, height, fov_x_deg, K)
     rng = np.random.default_rng(seed)
     targets, liver = _liver_targets(caster)
     for _ in range(max_tries):
