@@ -54,6 +54,10 @@ def register(sub) -> None:
                    help="JSON: dataset class id (\"21\") or colour (\"#ff7272\") -> class name of the class table, or null")
     p.add_argument("--class-table", default=None, metavar="FILE",
                    help="class table JSON adding the user's own classes for --label-map (as scene import takes)")
+    p.add_argument("--highlights", choices=("keep", "inpaint"), default="keep",
+                   help="inpaint: find the specular highlights of every kept frame and paint them out (OpenCV "
+                        "inpainting), so that a view-independent texture is not taught highlights that move with "
+                        "the light; keep: store frames as they are (default)")
     p.add_argument("--format", choices=("jpg", "png"), default="jpg", help="stored frames (default jpg, quality 95)")
     p.add_argument("--seed", type=int, default=0, help="seed of the held-out choice (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -66,13 +70,17 @@ def run(args: argparse.Namespace) -> int:
 
     settings = Settings(height=args.height, fps=args.fps, max_frames=args.max_frames, held_out=args.held_out,
                         dup_distance=args.dup_distance, min_content=args.min_content, image_format=args.format,
-                        labels=args.labels, label_map=args.label_map, class_table=args.class_table, seed=args.seed)
+                        labels=args.labels, label_map=args.label_map, class_table=args.class_table, seed=args.seed,
+                        highlights=args.highlights)
     m = build_realset(args.sources, args.out, settings, progress=not args.quiet)
     for src in m["sources"]:
         drops = ", ".join(f"{k} {v}" for k, v in src["dropped"].items() if v) or "none"
-        own = f"{counted(src['own_mask_frames'], 'frame')} with a view of their own, " if src["own_mask_frames"] else ""
+        notes = f"{counted(src['own_mask_frames'], 'frame')} with a view of their own, " if src["own_mask_frames"] else ""
+        if "highlights" in src:
+            hl = src["highlights"]
+            notes += f"highlights painted out: median {hl['median']:.1%}, max {hl['max']:.1%} of the content, "
         print(f"{src['id']}: {src['kind']} {src['frame_size'][1]}x{src['frame_size'][0]}, {src['shape']} view, "
-              f"content {src['content_fraction']:.0%} (overlay {src['overlay_fraction']:.1%}), {own}"
+              f"content {src['content_fraction']:.0%} (overlay {src['overlay_fraction']:.1%}), {notes}"
               f"{_largest_crop(Path(args.out), m, src)}{src['split']}: kept {src['kept']}, dropped {drops}")
     drops = ", ".join(f"{k} {v}" for k, v in m["dropped"].items())
     labelled = sum(1 for f in m["frames"] if f["label"])

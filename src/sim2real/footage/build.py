@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from sim2real.data.real_manifest import FORMAT, mask_file, write_manifest
 from sim2real.errors import UserError
-from sim2real.footage import content, filters, labels as labelling
+from sim2real.footage import content, filters, highlights, labels as labelling
 from sim2real.footage.decode import Source, expected_frames, find_sources, iter_frames
 from sim2real.scene.classes import ClassTable
 from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND
@@ -58,6 +58,9 @@ class Settings:
     """A class table file (:mod:`sim2real.scene.classes`) whose classes the label map may name."""
     seed: int = 0
     buffer_mb: int = 1024
+    highlights: str = "keep"
+    """'inpaint': specular highlights are found and painted out of every kept frame
+    (:mod:`sim2real.footage.highlights`); 'keep': frames are stored as they are."""
 
 
 def check_output(out: Path) -> None:
@@ -91,6 +94,8 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
         raise UserError(f"label folder {label_dir} does not exist or is not a directory")
     if s.image_format not in ("jpg", "png"):
         raise UserError(f"image format must be jpg or png, not {s.image_format}")
+    if s.highlights not in highlights.MODES:
+        raise UserError(f"highlights must be one of {', '.join(highlights.MODES)}, not {s.highlights}")
     sources = find_sources(srcs)
     splits = assign_splits(sources, s.held_out, s.seed)
     out_path.parent.mkdir(parents=True, exist_ok=True)
@@ -156,6 +161,7 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
                "frame_size": list(stats.frame_size), "box": list(area.box), "shape": area.shape,
                "content_fraction": round(area.fraction, 4), "overlay_fraction": round(area.overlay_fraction, 4),
                "mask": None, "own_mask_frames": 0, "kept": 0, "dropped": dropped}
+        shares = []
         if src.kind == "video":
             row["range"] = [src.start, None if math.isinf(src.end) else src.end]
         source_rows.append(row)
@@ -212,11 +218,17 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
             if own is not None:
                 cv2.imwrite(str(root / mask_file(mask_id)), f_mask.astype(np.uint8) * 255)
             rel = f"images/{src.id}/{fr.index:06d}.{s.image_format}"
+            entry = {"file": rel, "source": src.id, "index": fr.index, "time": fr.time, "size": [h_, w_],
+                     "mask": mask_id, "phash": f"{ph:016x}", "split": splits[src.id], "label": lab_rel}
+            if s.highlights == "inpaint":
+                img, share = highlights.inpaint_highlights(img, f_mask)
+                entry["highlights"] = round(share, 5)
+                shares.append(share)
             _write_image(root / rel, img, s.image_format, s.quality)
             row["kept"] += 1
-            frames_out.append({"file": rel, "source": src.id, "index": fr.index, "time": fr.time,
-                               "size": [h_, w_], "mask": mask_id, "phash": f"{ph:016x}", "split": splits[src.id],
-                               "label": lab_rel})
+            frames_out.append(entry)
+        if shares:
+            row["highlights"] = {"median": round(float(np.median(shares)), 5), "max": round(max(shares), 5)}
     for row in source_rows:
         row["dropped"] = dict(row["dropped"])
     label_classes = label_map.classes.to_json() if label_map is not None else None
