@@ -215,6 +215,22 @@ def test_scene_trajectory_takes_a_calibrated_cameras_intrinsics(capsys, tmp_path
         assert_one_line_error(code, capsys.readouterr().err.strip(), words)
 
 
+def test_render_draws_random_views_through_the_given_intrinsics(capsys, tmp_path, scene_dir):
+    from sim2real.render.gbuffer import GBuffer
+
+    out = tmp_path / "views"
+    code = main(["render", str(scene_dir), "--views", "2", "--height", "64", "--width", "96", "--workers", "1",
+                 "--intrinsics", "60,64,40,30", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    for k in range(2):
+        np.testing.assert_array_equal(GBuffer.load(out / f"view_{k:05d}.npz").K, [[60, 0, 40], [0, 64, 30], [0, 0, 1]])
+    code = main(["render", str(scene_dir), "--views", "2", "--height", "64", "--width", "96", "--fov", "70",
+                 "--intrinsics", "60,64,40,30", "--out", str(tmp_path / "both")])
+    assert_one_line_error(code, capsys.readouterr().err.strip(), "give --fov or --intrinsics")
+    assert not (tmp_path / "both").exists()
+
+
 
 def test_counts_are_written_with_their_noun_in_the_right_number():
     from sim2real.cli.args import counted

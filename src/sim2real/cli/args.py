@@ -24,13 +24,13 @@ def int_range(low: int, high: int | None = None):
     return parse
 
 
+positive_int = int_range(1)
+non_negative_int = int_range(0)
+
+
 def counted(n: int, noun: str) -> str:
     """``n`` and ``noun``, plural unless ``n`` is 1: "1 object", "3 objects"."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
-
-
-positive_int = int_range(1)
-non_negative_int = int_range(0)
 
 
 def positive_float(text: str) -> float:
@@ -106,3 +106,26 @@ def add_compile_arg(p) -> None:
                    help="compile the networks (TorchInductor; needs a C++ compiler on the CPU): the first frames wait "
                         "for the compiler (15-20 s on a 2-core CPU, a few once cached), the rest run faster; "
                         "for long trajectories")
+
+
+def add_camera_args(p: argparse.ArgumentParser) -> None:
+    """``--fov`` or ``--intrinsics``: the pinhole camera of generated views (:func:`camera_matrix`)."""
+    p.add_argument("--fov", type=positive_float, default=None, help="horizontal field of view, degrees (default 75)")
+    p.add_argument("--intrinsics", default=None, metavar="FX,FY,CX,CY",
+                   help="a calibrated endoscope's pinhole intrinsics in pixels of --width x --height, "
+                        "instead of --fov (lens distortion is not modelled)")
+
+
+def camera_matrix(args: argparse.Namespace):
+    """The 3x3 K of :func:`add_camera_args`' flags at ``args.width`` x ``args.height``; a bad value
+    or both flags: :class:`~sim2real.errors.UserError`."""
+    from sim2real.errors import UserError
+    from sim2real.scene.camera import view_intrinsics
+    from sim2real.scene.io import parse_vector
+
+    values = None
+    if args.intrinsics is not None:
+        if args.fov is not None:
+            raise UserError("give --fov or --intrinsics, not both")
+        values = parse_vector(args.intrinsics, 4, "--intrinsics")
+    return view_intrinsics(args.width, args.height, 75.0 if args.fov is None else args.fov, values)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import itertools
 
-from sim2real.cli.args import counted, non_negative_float, non_negative_int, positive_float, positive_int
+from sim2real.cli.args import add_camera_args, camera_matrix, counted, non_negative_float, non_negative_int, positive_int
 
 
 def register(sub) -> None:
@@ -16,7 +16,7 @@ def register(sub) -> None:
     src.add_argument("--trajectory", help="trajectory file (one pose per frame)")
     p.add_argument("--height", type=positive_int, default=256)
     p.add_argument("--width", type=positive_int, default=512)
-    p.add_argument("--fov", type=positive_float, default=75.0, help="horizontal field of view, degrees")
+    add_camera_args(p)  # of the random views (a trajectory file holds its cameras)
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--workers", type=positive_int, default=None, help="processes (default: all cores)")
     p.add_argument("--preview", action="store_true", help="also write the reference rendering a_ref as PNG")
@@ -34,7 +34,6 @@ def run(args: argparse.Namespace) -> int:
     from sim2real.data.views import write_views_manifest
     from sim2real.fileio import prepare_output_dir
     from sim2real.render.raycast import RayCaster, check_camera_region, render_views
-    from sim2real.scene.camera import check_size
     from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import MAX_BACKGROUND, Trajectory, iter_poses
 
@@ -46,13 +45,13 @@ def run(args: argparse.Namespace) -> int:
         count = len(cameras)
         caster = RayCaster(scene)
     else:
-        check_size(args.height, args.width)
+        K = camera_matrix(args)
         caster = RayCaster(scene)
         check_camera_region(scene, caster)
         # Poses are drawn while the workers render (about 2 ms each: 6 s before the first view
         # of 3,000 otherwise); the first one now, so that a scene without any fails before
         # anything is written.
-        poses = iter_poses(caster, args.views, args.height, args.width, args.fov, args.seed, max_background=max_bg)
+        poses = iter_poses(caster, args.views, args.height, args.width, None, args.seed, max_background=max_bg, K=K)
         first = next(poses)
         cameras, count = itertools.chain([first], poses), args.views
     out = prepare_output_dir(args.out)

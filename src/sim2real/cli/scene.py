@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from sim2real.cli.args import add_motion_args, counted, motion_kwargs, non_negative_int, positive_float, positive_int
-from sim2real.errors import UserError
+from sim2real.cli.args import add_camera_args, add_motion_args, camera_matrix, counted, motion_kwargs, non_negative_int, positive_float, positive_int
 from sim2real.scene.conventions import DEFAULT_CREASE_DEG, UNITS
 
 
@@ -67,10 +66,7 @@ def register(sub) -> None:
     t.add_argument("--frames", type=positive_int, default=100)
     t.add_argument("--height", type=positive_int, default=256)
     t.add_argument("--width", type=positive_int, default=512)
-    t.add_argument("--fov", type=positive_float, default=None, help="horizontal field of view, degrees (default 75)")
-    t.add_argument("--intrinsics", default=None, metavar="FX,FY,CX,CY",
-                   help="a calibrated endoscope's pinhole intrinsics in pixels of --width x --height, "
-                        "instead of --fov (lens distortion is not modelled)")
+    add_camera_args(t)
     t.add_argument("--fps", type=positive_float, default=5.0)
     t.add_argument("--seed", type=non_negative_int, default=0)
     add_motion_args(t)
@@ -135,21 +131,14 @@ def _preview(args: argparse.Namespace) -> int:
 def _trajectory(args: argparse.Namespace) -> int:
     # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real.render.raycast import RayCaster, check_camera_region
-    from sim2real.scene.camera import check_size, intrinsics_from_values
-    from sim2real.scene.io import parse_vector
     from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import make_trajectory
 
-    check_size(args.height, args.width)
-    K = None
-    if args.intrinsics is not None:
-        if args.fov is not None:
-            raise UserError("give --fov or --intrinsics, not both")
-        K = intrinsics_from_values(args.width, args.height, *parse_vector(args.intrinsics, 4, "--intrinsics"))
+    K = camera_matrix(args)
     scene = Scene.load(args.scene)
     caster = RayCaster(scene)
     check_camera_region(scene, caster)
-    traj = make_trajectory(caster, args.frames, args.height, args.width, args.fov or 75.0, seed=args.seed,
+    traj = make_trajectory(caster, args.frames, args.height, args.width, seed=args.seed,
                            fps=args.fps, K=K, **motion_kwargs(args))
     traj.save(args.out)
     m = traj.motion
