@@ -15,6 +15,7 @@ train and held-out is by source. ``REAL`` is what ``--real`` of train and evalua
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from sim2real.cli.args import counted, int_range, non_negative_float, positive_float, positive_int
@@ -54,6 +55,9 @@ def register(sub) -> None:
                    help="JSON: dataset class id (\"21\") or colour (\"#ff7272\") -> class name of the class table, or null")
     p.add_argument("--class-table", default=None, metavar="FILE",
                    help="class table JSON adding the user's own classes for --label-map (as scene import takes)")
+    p.add_argument("--calibration", default=None, metavar="FILE",
+                   help="the endoscope's OpenCV calibration (JSON: width, height, fx, fy, cx, cy, dist): frames are "
+                        "undistorted first, and each source's pinhole intrinsics are reported")
     p.add_argument("--highlights", choices=("keep", "inpaint"), default="keep",
                    help="inpaint: find the specular highlights of every kept frame and paint them out (OpenCV "
                         "inpainting), so that a view-independent texture is not taught highlights that move with "
@@ -71,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     settings = Settings(height=args.height, fps=args.fps, max_frames=args.max_frames, held_out=args.held_out,
                         dup_distance=args.dup_distance, min_content=args.min_content, image_format=args.format,
                         labels=args.labels, label_map=args.label_map, class_table=args.class_table, seed=args.seed,
-                        highlights=args.highlights)
+                        highlights=args.highlights, calibration=args.calibration)
     m = build_realset(args.sources, args.out, settings, progress=not args.quiet)
     for src in m["sources"]:
         drops = ", ".join(f"{k} {v}" for k, v in src["dropped"].items() if v) or "none"
@@ -79,24 +83,32 @@ def run(args: argparse.Namespace) -> int:
         if "highlights" in src:
             hl = src["highlights"]
             notes += f"highlights painted out: median {hl['median']:.1%}, max {hl['max']:.1%} of the content, "
+        k = _crop_scale(Path(args.out), m, src)
+        if k is not None:
+            notes += f"1:2 crops up to {int(64 * k)}x{int(128 * k)} px unenlarged, "
         print(f"{src['id']}: {src['kind']} {src['frame_size'][1]}x{src['frame_size'][0]}, {src['shape']} view, "
               f"content {src['content_fraction']:.0%} (overlay {src['overlay_fraction']:.1%}), {notes}"
-              f"{_largest_crop(Path(args.out), m, src)}{src['split']}: kept {src['kept']}, dropped {drops}")
+              f"{src['split']}: kept {src['kept']}, dropped {drops}")
+        if "intrinsics" in src:
+            fx, fy, cx, cy = src["intrinsics"]
+            fov = "" if k is None else (f"; a 1:2 crop {int(128 * k)} px wide sees "
+                                        f"{math.degrees(2 * math.atan(64 * k / fx)):.1f} degrees across")
+            print(f"{src['id']}: undistorted; the stored frames' pinhole intrinsics: fx {fx:.1f}, fy {fy:.1f}, "
+                  f"cx {cx:.1f}, cy {cy:.1f} px{fov}")
     drops = ", ".join(f"{k} {v}" for k, v in m["dropped"].items())
     labelled = sum(1 for f in m["frames"] if f["label"])
     print(f"kept {counted(m['kept'], 'frame')} ({labelled} labelled); dropped: {drops}; written to {args.out}")
     return 0
 
 
-def _largest_crop(out: Path, manifest: dict, src: dict) -> str:
-    """'1:2 crops up to HxW px unenlarged, ': the largest window of training's aspect inside the
-    content mask of every kept frame of the source, as stored (the measure of the training's
-    enlargement note, data/real.py); empty when none is kept."""
+def _crop_scale(out: Path, manifest: dict, src: dict) -> float | None:
+    """The scale k of the largest 1:2 window (64k x 128k px) inside the content mask of every kept
+    frame of the source, as stored (the measure of the training's enlargement note, data/real.py);
+    None when none is kept."""
     from sim2real.data.cover import ValidArea
     from sim2real.data.real_manifest import load_mask, mask_file
 
     ids = {f["mask"] for f in manifest["frames"] if f["source"] == src["id"]}
     if not ids:
-        return ""
-    k = min(ValidArea(load_mask(out / mask_file(i))).inscribed_scale(64, 128) for i in ids)
-    return f"1:2 crops up to {int(64 * k)}x{int(128 * k)} px unenlarged, "
+        return None
+    return min(ValidArea(load_mask(out / mask_file(i))).inscribed_scale(64, 128) for i in ids)

@@ -20,7 +20,7 @@ import math
 import shutil
 import tempfile
 from collections import Counter
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -32,6 +32,7 @@ from sim2real.data.real_manifest import FORMAT, mask_file, write_manifest
 from sim2real.errors import UserError
 from sim2real.footage import content, filters, highlights, labels as labelling
 from sim2real.footage.decode import Source, expected_frames, find_sources, iter_frames
+from sim2real.footage.undistort import Undistorter, read_calibration, stored_intrinsics
 from sim2real.scene.classes import ClassTable
 from sim2real.scene.scene import CLASSES, LABEL_BACKGROUND
 
@@ -58,6 +59,9 @@ class Settings:
     """A class table file (:mod:`sim2real.scene.classes`) whose classes the label map may name."""
     seed: int = 0
     buffer_mb: int = 1024
+    calibration: str | None = None
+    """The endoscope's calibration (JSON, :mod:`sim2real.footage.undistort`): frames are undistorted
+    first, and each source reports its stored frames' pinhole intrinsics."""
     highlights: str = "keep"
     """'inpaint': specular highlights are found and painted out of every kept frame
     (:mod:`sim2real.footage.highlights`); 'keep': frames are stored as they are."""
@@ -96,12 +100,13 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
         raise UserError(f"image format must be jpg or png, not {s.image_format}")
     if s.highlights not in highlights.MODES:
         raise UserError(f"highlights must be one of {', '.join(highlights.MODES)}, not {s.highlights}")
+    undistort = Undistorter(read_calibration(s.calibration)) if s.calibration else None
     sources = find_sources(srcs)
     splits = assign_splits(sources, s.held_out, s.seed)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_path.name}.", dir=out_path.parent))
     try:
-        manifest = _build(sources, splits, tmp, s, label_map, label_dir, progress)
+        manifest = _build(sources, splits, tmp, s, label_map, label_dir, progress, undistort)
         check_output(out_path)
         if out_path.is_dir():
             out_path.rmdir()
@@ -114,17 +119,26 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
     return manifest
 
 
-def _first_pass(src: Source, s: Settings, progress: bool) -> tuple[content.FrameStats, list | None, int]:
+def _frames(src: Source, s: Settings, undistort: Undistorter | None, pick: set[int] | None = None):
+    """The sampled frames of ``src``, undistorted where a calibration is given."""
+    for fr in iter_frames(src, s.fps, s.max_frames, pick):
+        if undistort is not None:
+            fr = replace(fr, image=undistort(fr.image))
+        yield fr
+
+
+def _first_pass(src: Source, s: Settings, progress: bool,
+                undistort: Undistorter | None) -> tuple[content.FrameStats, list | None, int]:
     """Frame statistics, the sampled frames when they fit the buffer (videos), and their count."""
     stats = content.FrameStats()
     if src.kind == "frames":
         n = min(len(src.files), s.max_frames or len(src.files))
         pick = set(np.linspace(0, n - 1, min(n, STATS_FRAMES)).round().astype(int).tolist())
-        for fr in iter_frames(src, s.fps, s.max_frames, pick):
+        for fr in _frames(src, s, undistort, pick):
             stats.add(fr.image)
         return stats, None, n
     buf, size, n = [], 0, 0
-    frames = tqdm(iter_frames(src, s.fps, s.max_frames), total=expected_frames(src, s.fps, s.max_frames),
+    frames = tqdm(_frames(src, s, undistort), total=expected_frames(src, s.fps, s.max_frames),
                   desc=f"{src.id}: content area", unit="frame", disable=not progress, leave=False)
     for fr in frames:
         stats.add(fr.image)
@@ -147,12 +161,12 @@ def _write_image(path: Path, rgb: np.ndarray, fmt: str, quality: int) -> None:
 
 
 def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Settings, label_map, label_dir,
-           progress: bool) -> dict:
+           progress: bool, undistort: Undistorter | None = None) -> dict:
     frames_out, source_rows = [], []
     dropped_all: Counter = Counter()
     dups = filters.DuplicateIndex(s.dup_distance)
     for src in sources:
-        stats, buf, n = _first_pass(src, s, progress)
+        stats, buf, n = _first_pass(src, s, progress, undistort)
         if n == 0 or stats.n == 0:
             raise UserError(f"source {src.path} yields no frames")
         area = content.detect(stats)
@@ -170,13 +184,15 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
             dropped_all["small_content"] += n
             continue
         h, w = content.stored_size(area.box, s.height)
+        if undistort is not None:
+            row["intrinsics"] = stored_intrinsics(undistort.calibration.at(*stats.frame_size), area.box, (h, w))
         mask = content.mask_at(area, h, w)
         mask_rel = mask_file(src.id)
         row["mask"] = mask_rel
         (root / "masks").mkdir(exist_ok=True)
         cv2.imwrite(str(root / mask_rel), mask.astype(np.uint8) * 255)
         (root / "images" / src.id).mkdir(parents=True, exist_ok=True)
-        frames = buf if buf is not None else iter_frames(src, s.fps, s.max_frames)
+        frames = buf if buf is not None else _frames(src, s, undistort)
         for fr in tqdm(frames, total=n, desc=src.id, unit="frame", disable=not progress, leave=False):
             if fr.image.shape[:2] != tuple(stats.frame_size):
                 raise UserError(f"frames of source {src.path} differ in size ({tuple(stats.frame_size)} and "
@@ -201,6 +217,8 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
                 lp = labelling.label_path(label_dir, fr.file, src.root)
                 if lp is not None:
                     lab = labelling.load_label(lp, fr.image.shape[:2], label_map)
+                    if undistort is not None:
+                        lab = undistort(lab, labels=True)
                     lab = np.where(f_area.mask, lab, LABEL_BACKGROUND).astype(np.uint8)
                     lab = cv2.resize(f_area.crop(lab), (w_, h_), interpolation=cv2.INTER_NEAREST)
                     lab[~f_mask] = LABEL_BACKGROUND
