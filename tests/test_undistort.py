@@ -123,3 +123,36 @@ def test_calibration_scales_with_the_frame_size():
     cal = Calibration(640, 480, np.array([[400.0, 0, 319.5], [0, 400.0, 239.5], [0, 0, 1]]), np.zeros(5))
     # pixel centres at integers: centre u of the 640 px image lies at (u + 0.5) / 2 - 0.5 at 320 px
     np.testing.assert_allclose(cal.at(240, 320), [[200, 0, 159.5], [0, 200, 119.5], [0, 0, 1]])
+
+
+def test_the_fov_note_gives_the_crops_range_and_the_value_to_set():
+    from sim2real.data.real import field_of_view_note
+
+    # 60 degrees at scale 1: 2 atan(tan 30 / 1.2) = 51.38 at scale 1.2; 2 atan(tan 30 / sqrt 1.2) = 55.58
+    note = field_of_view_note([58.0, 60.0, 62.0], 75.0, 1.0, 1.2)
+    assert note.startswith("note: the real set's calibrated training crops see 51.4-60.0 degrees across, "
+                           "the simulated views 75.0") and "set data.fov_x_deg=55.6" in note
+    assert field_of_view_note([60.0], 56.0, 1.0, 1.2) is None  # within 10 % of 55.58
+    assert field_of_view_note([], 75.0, 1.0, 1.2) is None  # nothing calibrated
+
+
+def test_training_on_a_calibrated_set_notes_another_field_of_view(tmp_path, capsys, train_inputs):
+    from sim2real.data.real import RealImages
+
+    img, _ = pinhole_picture()
+    (tmp_path / "frames").mkdir()
+    for k in range(3):
+        Image.fromarray(distort(np.roll(img, 30 * k, axis=0), cv2.INTER_LINEAR)).save(tmp_path / "frames" / f"{k}.png")
+    assert main(["realset", str(tmp_path / "frames"), "--out", str(tmp_path / "real"), "--calibration",
+                 str(calibration_file(tmp_path)), "--dup-distance", "-1", "--held-out", "0", "--quiet"]) == 0
+    capsys.readouterr()
+    # 240x320 frames, fx 200: the largest 1:2 window is at most 320 px wide, at least 300 (the
+    # resampling filter's margin): 2 atan(150 / 200) = 73.7 to 2 atan(160 / 200) = 77.3 degrees
+    fovs = RealImages(tmp_path / "real").crop_fields_of_view(64, 128)
+    assert len(fovs) == 3 and all(73.7 <= f <= 77.3 for f in fovs), fovs
+    code = main(["train", "--preset", "tiny", "--scenes", str(train_inputs[0]), "--real", str(tmp_path / "real"),
+                 "--out", str(tmp_path / "run"), "--iterations", "1", "--device", "cpu", "--no-progress",
+                 "--set", "data.fov_x_deg=40", "data.workers=0"])
+    io = capsys.readouterr()
+    assert code == 0, io.err
+    assert "note: the real set's calibrated training crops see " in io.out and "simulated views 40.0" in io.out

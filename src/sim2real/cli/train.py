@@ -137,7 +137,8 @@ def init_config(source) -> tuple:
 def run(args: argparse.Namespace) -> int:
     # imported here, not at the top: 'sim2real --help' starts without torch and trimesh
     from sim2real import shipped
-    from sim2real.data.real import enlargement_note
+    from sim2real.data.real import enlargement_note, field_of_view_note
+    from sim2real.scene.camera import horizontal_fov_deg, view_intrinsics
     from sim2real.engine import checkpoint as ckpt
     from sim2real.engine.stop import exit_code, signal_name
     from sim2real.engine.trainer import Trainer
@@ -178,6 +179,12 @@ def run(args: argparse.Namespace) -> int:
         if state is None and trainer.dist.is_main:  # once per run, on its first start
             factors = trainer.real.enlargements(cfg.data.height, cfg.data.width)
             note = enlargement_note(factors, cfg.data.height, cfg.data.width) if factors else None
+            if note:
+                print(note, flush=True)
+            d = cfg.data
+            sim_deg = horizontal_fov_deg(view_intrinsics(d.width, d.height, d.fov_x_deg, d.intrinsics), d.width)
+            note = field_of_view_note(trainer.real.crop_fields_of_view(d.height, d.width), sim_deg,
+                                      d.real_scale_min, d.real_scale_max)
             if note:
                 print(note, flush=True)
         if changes and trainer.dist.is_main:

@@ -10,6 +10,7 @@ an alpha channel is dropped (the colour values are kept as they are, not composi
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -66,6 +67,32 @@ def enlargement_note(factors: list[float], height: int, width: int) -> str | Non
     return (f"note: {len(small)} of {len(factors)} real frames hold less than the {height}x{width} training crop "
             f"and are enlarged (up to {max(small):.1f}x), so the translator learns their blur; give larger frames "
             f"or train smaller (--set data.height=... data.width=...)")
+
+
+FOV_NOTED = 0.1
+"""Relative difference between the simulated views' and the real crops' horizontal fields of
+view from which :func:`field_of_view_note` speaks (10 %: organs then appear a tenth larger or
+smaller in one domain than in the other)."""
+
+
+def field_of_view_note(real_deg: list[float], sim_deg: float, scale_min: float, scale_max: float) -> str | None:
+    """A note when the real crops' horizontal field of view (``real_deg``: each calibrated
+    training frame's at crop scale 1, :meth:`RealImages.crop_fields_of_view`) differs from the
+    simulated views' ``sim_deg`` by at least :data:`FOV_NOTED`, else None. A crop at scale s
+    sees ``2 atan(tan(fov / 2) / s)``: the note gives the range over the scales drawn."""
+    if not real_deg:
+        return None
+    mid = float(np.median(real_deg))
+
+    def at(scale: float) -> float:
+        return math.degrees(2 * math.atan(math.tan(math.radians(mid) / 2) / scale))
+
+    typical = at(math.sqrt(scale_min * scale_max))
+    if abs(typical - sim_deg) < FOV_NOTED * sim_deg:
+        return None
+    return (f"note: the real set's calibrated training crops see {at(scale_max):.1f}-{at(scale_min):.1f} degrees "
+            f"across, the simulated views {sim_deg:.1f} (data.fov_x_deg or data.intrinsics), so organs appear at "
+            f"other sizes in the two domains; set data.fov_x_deg={typical:.1f} or data.intrinsics")
 
 
 def load_rgb(path: str | os.PathLike) -> np.ndarray:
@@ -168,9 +195,12 @@ class RealImages:
             self.files = [self.folder / f["file"] for f in frames]
             self.masks = [f["mask"] for f in frames]
             self.sizes = [tuple(f["size"]) for f in frames]
+            calibrated = {s["id"]: s["intrinsics"] for s in m["sources"] if s.get("intrinsics")}
+            self.intrinsics = [calibrated.get(f["source"]) for f in frames]
             self.realset = True
             return
         self.realset = False
+        self.intrinsics = []
         root = self.folder.resolve()
         cached = None
         if self.index_path is not None and self.index_path.is_file():
@@ -208,6 +238,17 @@ class RealImages:
         if self.masks:
             return [1.0 / self.valid_area(i).inscribed_scale(height, width) for i in range(len(self.files))]
         return [max(height / h, width / w) for h, w in self.sizes]
+
+    def crop_fields_of_view(self, height: int, width: int) -> list[float]:
+        """The horizontal field of view (degrees) of each calibrated training frame's largest
+        ``height x width`` window, the training crop at scale 1 (its source's intrinsics from
+        ``realset --calibration``; a window centred on the principal point); empty without them."""
+        out = []
+        for i, K in enumerate(self.intrinsics):
+            if K:
+                half = 0.5 * width * self.valid_area(i).inscribed_scale(height, width)
+                out.append(math.degrees(2 * math.atan(half / K[0])))
+        return out
 
     def valid_area(self, i: int) -> ValidArea | None:
         """The content mask of image ``i`` (loaded once per mask and process), None for a plain folder."""

@@ -60,11 +60,18 @@ def intrinsics_from_values(width: int, height: int, fx: float, fy: float, cx: fl
         raise UserError(f"intrinsics need positive focal lengths, got fx {fx:g}, fy {fy:g}")
     if not (0 < cx < width and 0 < cy < height):
         raise UserError(f"the principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} image")
-    fov = math.degrees(math.atan(cx / fx) + math.atan((width - cx) / fx))
+    fov = horizontal_fov_deg(np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), width)
     lo, hi = FOV_RANGE_DEG
     if not lo <= fov <= hi:
         raise UserError(f"the intrinsics give a horizontal field of view of {fov:.1f} degrees, outside [{lo:g}, {hi:g}]")
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def horizontal_fov_deg(K: np.ndarray, width: int) -> float:
+    """The angle (degrees) between the rays through the left and the right image edges, in the
+    plane of the principal point's row."""
+    fx, cx = float(K[0, 0]), float(K[0, 2])
+    return math.degrees(math.atan(cx / fx) + math.atan((width - cx) / fx))
 
 
 def view_intrinsics(width: int, height: int, fov_x_deg: float, values=None) -> np.ndarray:
