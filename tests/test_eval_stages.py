@@ -26,10 +26,11 @@ from sim2real.inference.stages import (
     views_stage,
 )
 from sim2real.render.raycast import RayCaster
+from sim2real.scene.camera import intrinsics_from_fov
 from sim2real.scene.scene import Scene
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-SIZE = (64, 128, 75.0)
+SIZE = (64, 128, intrinsics_from_fov(128, 64, 75.0))  # (H, W, the views' K)
 
 
 class CeilingModel:
