@@ -156,3 +156,29 @@ def test_training_on_a_calibrated_set_notes_another_field_of_view(tmp_path, caps
     io = capsys.readouterr()
     assert code == 0, io.err
     assert "note: the real set's calibrated training crops see " in io.out and "simulated views 40.0" in io.out
+
+
+def test_a_frame_whose_view_moved_gets_its_own_principal_point(tmp_path, capsys):
+    """Without distortion (dist 0) undistorting keeps the frames. The scope's circle (radius 50)
+    sits at x = 100 in frames 0-3 and at x = 135 in frames 4-5: each frame gets its own box
+    (columns 50..150, then 85..185), stored at about scale 1 (100 px high), and with it its own
+    principal point: the calibration's x = 100 lies about 50 px, then about 15 px, inside it."""
+    from sim2real.data.real import RealImages
+    from tests.test_footage import circle_frame, save
+
+    src = tmp_path / "frames"
+    for i in range(6):
+        save(src / f"{i:03d}.png", circle_frame(i, cx=100 if i < 4 else 135))
+    calib = tmp_path / "calibration.json"
+    calib.write_text(json.dumps({"width": 200, "height": 120, "fx": 90.0, "fy": 90.0, "cx": 99.5, "cy": 59.5,
+                                 "dist": [0, 0, 0, 0]}))
+    code = main(["realset", str(src), "--out", str(tmp_path / "real"), "--calibration", str(calib),
+                 "--format", "png", "--dup-distance", "-1", "--height", "100", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    m = json.loads((tmp_path / "real" / "manifest.json").read_text())
+    cx = {f["index"]: f["intrinsics"][2] for f in m["frames"]}
+    assert sorted(cx) == list(range(6))
+    assert all(46 <= cx[i] <= 54 for i in range(4)) and all(11 <= cx[i] <= 19 for i in (4, 5)), cx
+    assert all(f["intrinsics"][0] == pytest.approx(90.0, rel=0.06) for f in m["frames"])
+    real = RealImages(tmp_path / "real")  # training reads each frame's own
+    assert [K[2] for K in real.intrinsics] == [cx[int(p.stem)] for p in real.files]

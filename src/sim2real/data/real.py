@@ -196,7 +196,7 @@ class RealImages:
             self.masks = [f["mask"] for f in frames]
             self.sizes = [tuple(f["size"]) for f in frames]
             calibrated = {s["id"]: s["intrinsics"] for s in m["sources"] if s.get("intrinsics")}
-            self.intrinsics = [calibrated.get(f["source"]) for f in frames]
+            self.intrinsics = [f.get("intrinsics") or calibrated.get(f["source"]) for f in frames]
             self.realset = True
             return
         self.realset = False

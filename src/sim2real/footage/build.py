@@ -184,8 +184,9 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
             dropped_all["small_content"] += n
             continue
         h, w = content.stored_size(area.box, s.height)
-        if undistort is not None:
-            row["intrinsics"] = stored_intrinsics(undistort.calibration.at(*stats.frame_size), area.box, (h, w))
+        K_frames = None if undistort is None else undistort.calibration.at(*stats.frame_size)
+        if K_frames is not None:
+            row["intrinsics"] = stored_intrinsics(K_frames, area.box, (h, w))
         mask = content.mask_at(area, h, w)
         mask_rel = mask_file(src.id)
         row["mask"] = mask_rel
@@ -238,6 +239,8 @@ def _build(sources: list[Source], splits: dict[str, str], root: Path, s: Setting
             rel = f"images/{src.id}/{fr.index:06d}.{s.image_format}"
             entry = {"file": rel, "source": src.id, "index": fr.index, "time": fr.time, "size": [h_, w_],
                      "mask": mask_id, "phash": f"{ph:016x}", "split": splits[src.id], "label": lab_rel}
+            if own is not None and K_frames is not None:  # its own box: its own principal point
+                entry["intrinsics"] = stored_intrinsics(K_frames, own.box, f_size)
             if s.highlights == "inpaint":
                 img, share = highlights.inpaint_highlights(img, f_mask)
                 entry["highlights"] = round(share, 5)
