@@ -94,3 +94,19 @@ def test_realset_paints_out_highlights_on_request(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and len(err.splitlines()) == 1 and "invalid choice: 'remove'" in err
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_large_white_region_is_left_and_the_spots_beside_it_are_not():
+    """A clipped white bar of 30 x 200 px (an overexposed instrument shaft: 6 % of the content,
+    above the 2 % limit) stays as it is; the three spots are still painted out."""
+    img, content = frame()
+    img[200:230, 150:350] = 255
+    mask = highlight_mask(img, content)
+    assert not mask[195:235, 145:355].any()
+    assert all(mask[r, c] for r, c in SPOTS)
+    out, _ = inpaint_highlights(img, content)
+    assert (out[200:230, 150:350] == 255).all()
+    # a bar of 10 x 40 px (0.4 % of the content) is small enough: it is found and painted out
+    img, _ = frame()
+    img[200:210, 150:190] = 255
+    assert highlight_mask(img, content)[200:210, 150:190].all()

@@ -18,6 +18,12 @@ specular highlights for endoscopic imaging"): a pixel is a highlight where it is
 
 The set is grown by 1/128 of the short side (the halo around a highlight) and kept inside the
 content mask, eroded by half the median window (where the window would see the black surround).
+A connected region larger than :data:`LARGEST` of the content is left as it is. On 30 Cholec
+frames, 6 regions were larger (2.1-15.7 % each): five an instrument's metal shaft or an
+overexposed area at the rim of the view, one a large reflection on wet tissue, which therefore
+stays; below it were reflections on tissue and on instrument edges (a frame's largest region:
+median 1.2 %). Inpainting a region that large smears tissue colour over an instrument, or leaves
+a hard white edge where the region meets the rim.
 
 **Painted out** with OpenCV's inpainting (Telea's fast marching method, ``cv2.INPAINT_TELEA``),
 radius 1/100 of the short side: smooth colour from the border of each highlight inwards.
@@ -36,6 +42,7 @@ VALUE_MIN = 180
 SATURATION_MAX = 90
 CLIPPED_VALUE = 250
 CLIPPED_SATURATION = 40
+LARGEST = 0.02
 
 
 def _odd(n: float) -> int:
@@ -56,7 +63,13 @@ def highlight_mask(rgb: np.ndarray, content: np.ndarray) -> np.ndarray:
     grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_odd(short / 64),) * 2)
     found = cv2.dilate((brighter | clipped).astype(np.uint8), grow) > 0
     inside = cv2.erode(content.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (window, window))) > 0
-    return found & inside
+    found &= inside
+    n, regions, stats, _ = cv2.connectedComponentsWithStats(found.astype(np.uint8), connectivity=8)
+    large = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] > LARGEST * max(int(content.sum()), 1))
+    large = large[large > 0]  # region 0 is the rest of the frame
+    if large.size:
+        found &= ~np.isin(regions, large)
+    return found
 
 
 def inpaint_highlights(rgb: np.ndarray, content: np.ndarray) -> tuple[np.ndarray, float]:
