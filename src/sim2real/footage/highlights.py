@@ -64,9 +64,9 @@ def highlight_mask(rgb: np.ndarray, content: np.ndarray) -> np.ndarray:
     found = cv2.dilate((brighter | clipped).astype(np.uint8), grow) > 0
     inside = cv2.erode(content.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (window, window))) > 0
     found &= inside
-    n, regions, stats, _ = cv2.connectedComponentsWithStats(found.astype(np.uint8), connectivity=8)
-    large = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] > LARGEST * max(int(content.sum()), 1))
-    large = large[large > 0]  # region 0 is the rest of the frame
+    _, regions, stats, _ = cv2.connectedComponentsWithStats(found.astype(np.uint8), connectivity=8)
+    # region 0 is the rest of the frame
+    large = 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] > LARGEST * max(int(content.sum()), 1))
     if large.size:
         found &= ~np.isin(regions, large)
     return found
