@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
               f"{src['split']}: kept {src['kept']}, dropped {drops}")
         if "intrinsics" in src:
             fx, fy, cx, cy = src["intrinsics"]
-            fov = "" if k is None else (f"; a 1:2 crop {int(128 * k)} px wide sees "
+            fov = "" if k is None else (f"; a 1:2 crop {int(128 * k)} px wide sees up to "
                                         f"{math.degrees(2 * math.atan(64 * k / fx)):.1f} degrees across")
             print(f"{src['id']}: undistorted; the stored frames' pinhole intrinsics: fx {fx:.1f}, fy {fy:.1f}, "
                   f"cx {cx:.1f}, cy {cy:.1f} px{fov}")
