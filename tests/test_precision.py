@@ -109,6 +109,26 @@ def test_emulated_bf16_is_bf16_on_a_cpu_without_its_instructions(monkeypatch):
 
 @pytest.mark.skipif(not Path("/proc/cpuinfo").is_file(), reason="needs /proc/cpuinfo (Linux)")
 def test_cpu_bf16_probe_agrees_with_the_kernel():
-    flags = {f for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags")
+    # x86 lists its extensions under 'flags', 64-bit Arm under 'Features' (BF16 as 'bf16')
+    flags = {f for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith(("flags", "Features"))
              for f in line.split(":", 1)[1].split()}
-    assert precision.cpu_has_bf16() == bool({"avx512_bf16", "amx_tile"} & flags)
+    assert precision.cpu_has_bf16() == bool({"avx512_bf16", "amx_tile", "bf16"} & flags)
+
+
+def test_cpu_bf16_probe_asks_the_architectures_own_extension(monkeypatch):
+    def probes(avx512_bf16, amx, arm_bf16):
+        monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: avx512_bf16)
+        monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx)
+        monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda: arm_bf16)
+
+    probes(False, False, True)  # the Arm probe says AVX-512 on x86: not bf16 instructions there
+    assert not precision.cpu_has_bf16("x86_64") and precision.cpu_has_bf16("aarch64")
+    assert precision.cpu_has_bf16("arm64")  # macOS spells 64-bit Arm so
+    probes(True, False, False)
+    assert precision.cpu_has_bf16("x86_64") and precision.cpu_has_bf16("AMD64")  # Windows spells it so
+    assert not precision.cpu_has_bf16("aarch64")
+    probes(False, True, False)
+    assert precision.cpu_has_bf16("x86_64")
+    assert not precision.cpu_has_bf16("riscv64") and not precision.cpu_has_bf16("ppc64le")
+    monkeypatch.delattr(torch.cpu, "_is_avx512_bf16_supported")  # a torch without the probe
+    assert not precision.cpu_has_bf16("x86_64")

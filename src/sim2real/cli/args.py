@@ -95,8 +95,8 @@ def add_precision_arg(p) -> None:
                         "'sim2real doctor' says which)")
 
 
-EMULATED_BF16 = ("note: this CPU has no bf16 instructions (AVX512-BF16 or AMX), so --precision bf16 is emulated, "
-                 "many times slower than fp32; leave it out for speed")
+EMULATED_BF16 = ("note: this CPU has no bf16 instructions (AVX512-BF16 or AMX on x86, BF16 on Arm), so --precision "
+                 "bf16 is emulated, many times slower than fp32; leave it out for speed")
 """What translate and evaluate print (to stderr) before running emulated bf16."""
 
 

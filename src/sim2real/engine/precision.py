@@ -5,6 +5,7 @@ run bf16 on the CPU on request (:func:`inference_bf16`)."""
 from __future__ import annotations
 
 import contextlib
+import platform
 
 import torch
 
@@ -25,13 +26,21 @@ def autocast(device: torch.device, enabled: bool):
 INFERENCE_PRECISIONS = ("auto", "fp32", "bf16")
 
 
-def cpu_has_bf16() -> bool:
-    """Whether this CPU has bf16 instructions (AVX512-BF16 or AMX tiles, x86); elsewhere oneDNN
-    emulates bf16 (:func:`emulated_bf16`)."""
+def cpu_has_bf16(machine: str | None = None) -> bool:
+    """Whether this CPU (``machine``: its architecture, default :func:`platform.machine`) has bf16
+    instructions: AVX512-BF16 or AMX tiles on x86; the Armv8.6 BF16 extension on 64-bit Arm, as
+    torch's own oneDNN dispatch asks it there. Without them oneDNN emulates bf16
+    (:func:`emulated_bf16`). Any other architecture, or a torch without these probes: no."""
+    machine = (machine or platform.machine()).lower()
     try:
-        return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
-    except AttributeError:  # a torch without these probes
-        return False
+        if machine in ("x86_64", "amd64", "i386", "i686"):
+            return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
+        if machine in ("aarch64", "arm64"):
+            # on x86 this probe says AVX-512 (which emulates bf16), on 64-bit Arm the BF16 extension
+            return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # a torch without these probes (or built without oneDNN)
+        pass
+    return False
 
 
 def emulated_bf16(device: torch.device, bf16: bool) -> bool:
