@@ -269,3 +269,13 @@ def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, what):
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no output, no temporary folder
     if what == "existing_out":
         assert [p.name for p in (tmp_path / "real").iterdir()] == ["keep.txt"]
+
+
+@pytest.mark.parametrize("what", ["corrupt_video", "truncated_mp4"])
+def test_unopenable_video_fails_before_any_progress_bar(tmp_path, capsys, what):
+    # without --quiet: a video the container library cannot open is refused before its bar is drawn,
+    # so captured stderr holds the error line alone (no carriage-return fragment of a cleared bar)
+    code, io = run_cli(["realset", *_bad(tmp_path, what), "--out", str(tmp_path / "real")], capsys)
+    assert code == 2
+    assert "\r" not in io.err and io.err.count("\n") == 1, repr(io.err)
+    assert io.err.startswith("sim2real: error: cannot open video"), io.err

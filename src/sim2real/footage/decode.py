@@ -160,15 +160,14 @@ def read_image(path: Path) -> np.ndarray:
 
 
 def expected_frames(source: Source, fps: float, max_frames: int | None = None) -> int | None:
-    """How many frames :func:`iter_frames` will give, as far as the container tells (for progress)."""
+    """How many frames :func:`iter_frames` will give, as far as the container tells (for progress);
+    a video that cannot be opened raises :class:`UserError`."""
     if source.kind == "frames":
         n = len(source.files)
     else:
-        try:
-            with av.open(str(source.path)) as c:
-                d = _duration(c, c.streams.video[0]) if c.streams.video else None
-        except (av.FFmpegError, OSError, ValueError):
-            return None
+        # a container that cannot be opened fails here, before a progress bar is drawn for it
+        with _open_video(source.path) as c:
+            d = _duration(c, c.streams.video[0]) if c.streams.video else None
         if d is None:
             return None
         n = math.ceil((min(d, source.end) - source.start) * fps)
@@ -188,13 +187,16 @@ def iter_frames(source: Source, fps: float, max_frames: int | None = None,
     yield from _video_frames(source, fps, max_frames)
 
 
-def _video_frames(source: Source, fps: float, max_frames: int | None) -> Iterator[Frame]:
-    path = source.path
+def _open_video(path: Path):
     try:
-        container = av.open(str(path))
+        return av.open(str(path))
     except (av.FFmpegError, OSError, ValueError) as e:
         raise UserError(f"cannot open video {path}: {reason(e)}") from None
-    with container:
+
+
+def _video_frames(source: Source, fps: float, max_frames: int | None) -> Iterator[Frame]:
+    path = source.path
+    with _open_video(path) as container:
         if not container.streams.video:
             raise UserError(f"{path} holds no video stream")
         stream = container.streams.video[0]
