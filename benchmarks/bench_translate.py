@@ -98,7 +98,8 @@ def _timed(model, scene_name, gbuffers, batch) -> tuple[float, list]:
 def count_gflop(fn) -> float:
     """Convolution and matrix GFLOP that ``fn()`` runs, as ``torch.utils.flop_counter`` counts them
     (a convolution: 2 cin cout k_h k_w h_out w_out per sample; the sub-pixel up-step as the
-    convolutions it runs)."""
+    convolutions it runs). Run ``fn`` under ``torch.no_grad``, not inference mode, under which
+    torch 2.5's counter sees nothing (it counts 0)."""
     from torch.utils.flop_counter import FlopCounterMode
 
     with FlopCounterMode(display=False) as counter:
@@ -107,11 +108,14 @@ def count_gflop(fn) -> float:
 
 
 def _network_gflop(run, device, scene_name, gbuffer) -> float:
-    """GFLOP of one frame through the run's networks (eager, fp32)."""
+    """GFLOP of one frame through the run's networks (eager, fp32), as ``translate`` runs them but
+    outside inference mode (:func:`count_gflop`)."""
     from sim2real.inference.model import load_run
 
     model = load_run(run, device=device, precision="fp32")
-    return count_gflop(lambda: model.translate_gbuffers(scene_name, [gbuffer], 1))
+    seq = model.method.sequence(model.gen, model.scene(scene_name).index, model.device)
+    with torch.no_grad():
+        return count_gflop(lambda: seq.push([gbuffer]))
 
 
 def _matmul_gflops(device: str, dtype: torch.dtype, repeats: int = 10) -> float:
