@@ -53,6 +53,14 @@ def _unproject(depth, K, c2w, centres):
     return pc @ c2w[:3, :3].T + c2w[:3, 3]
 
 
+def _png16(path) -> np.ndarray:
+    """A PNG's pixels, checked to be stored as 16-bit greyscale (IHDR: bit depth 16, colour type 0)
+    from the file's header: Pillow 10.0 reads such a file as int32."""
+    header = path.read_bytes()[:26]  # 8-byte signature, IHDR length, type, width, height, depth, colour
+    assert header[12:16] == b"IHDR" and header[24] == 16 and header[25] == 0
+    return np.array(Image.open(path)).astype(np.uint16)
+
+
 def test_depth_round_trip(export, gbuffers):
     out, _ = export
     for i, g in enumerate(gbuffers):
@@ -62,8 +70,7 @@ def test_depth_round_trip(export, gbuffers):
         assert np.abs(png - g.depth)[g.mask].max() <= 0.05 + 1e-4
         npy = np.load(out / "depth_npy" / f"{i:06d}.npy")
         assert npy.dtype == np.float32 and np.array_equal(npy, np.where(g.mask, g.depth, 0))
-        raw = np.array(Image.open(out / "depth" / f"{i:06d}.png"))
-        assert raw.dtype == np.uint16
+        _png16(out / "depth" / f"{i:06d}.png")
 
 
 def test_depth_png_saturates_and_never_loses_a_surface():
@@ -164,8 +171,7 @@ def test_tum_folder(export, gbuffers):
         assert (tum / rgb).is_file() and (tum / dep).is_file()
         assert (tum / rgb).read_bytes() == (out / "frames" / f"{i:06d}.png").read_bytes()
         g = gbuffers[i]
-        raw = np.array(Image.open(tum / dep))
-        assert raw.dtype == np.uint16
+        raw = _png16(tum / dep)
         depth_m = raw / 5000.0
         assert np.abs(depth_m * 1000 - g.depth)[g.mask].max() <= 0.1 + 1e-4  # 0.2 mm steps
         assert np.array_equal(raw > 0, g.mask)
