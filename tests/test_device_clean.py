@@ -6,6 +6,7 @@ without saying where (``torch.zeros(n)``, ``torch.arange(k)``, a module built wi
 lands on the meta device, and the first operation mixing it with the run's CPU tensors fails, or its
 values are missing when they are read: on a GPU such a tensor would sit on the wrong device."""
 
+import functools
 import json
 import math
 
@@ -97,6 +98,7 @@ def test_a_ref_rendered_from_the_sample_with_a_meta_default_device(procedural_ca
 # host waits for every queued kernel) fails with DataDependentOutputException.
 
 
+@functools.cache
 def _fake_cuda_unavailable() -> str | None:
     """Why this torch cannot fake a CUDA device here, or None. Before torch 2.10 FakeTensorMode
     initialised a "cuda" parameter through the CUDA runtime, which fails where no driver is
