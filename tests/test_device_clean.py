@@ -8,7 +8,6 @@ values are missing when they are read: on a GPU such a tensor would sit on the w
 
 import functools
 import json
-import math
 
 import numpy as np
 import pytest
@@ -228,19 +227,24 @@ def test_a_cpu_tensor_in_the_step_fails_on_the_fake_cuda_device(train_inputs, tm
 
 def test_a_host_sync_in_the_step_fails_on_the_fake_cuda_device(train_inputs, tmp_path, fake_cuda, four_views,
                                                                monkeypatch):
-    """kornia's gaussian_blur2d inside a device context reads its sigma back from the device; the
-    edge-recall term's own blur does not (losses/structure.py). Put kornia's back and the step fails."""
-    import kornia
+    """A value read back from the device inside the step (on a GPU, a host sync) fails it. The read
+    back is the one kornia 0.9's gaussian_blur2d makes inside a device context, written out here
+    because other kornia releases check sigma differently (0.8.2 reads nothing back): sigma put in a
+    tensor made without a device, so on the device, and read to check it is positive. The edge-recall
+    term's own blur (losses/structure.py) reads nothing back."""
     from torch._subclasses.fake_tensor import DataDependentOutputException
 
     import sim2real.losses.structure as structure
 
-    def kornia_blur(x, sigma):
-        k = 2 * math.ceil(3 * sigma) + 1
-        with torch.device(x.device):
-            return kornia.filters.gaussian_blur2d(x, (k, k), (sigma, sigma))
+    own_blur = structure.gaussian_blur
 
-    monkeypatch.setattr(structure, "gaussian_blur", kornia_blur)
+    def blur_reading_sigma_back(x, sigma):
+        with torch.device(x.device):
+            if not bool((torch.tensor([sigma, sigma]) > 0).all()):
+                raise ValueError("sigma must be positive")
+        return own_blur(x, sigma)
+
+    monkeypatch.setattr(structure, "gaussian_blur", blur_reading_sigma_back)
     scenes, real = train_inputs
     cfg = _config("ours", loss__ab_structure="edges")
     with pytest.raises(DataDependentOutputException):

@@ -9,7 +9,10 @@ from pathlib import Path
 
 import pytest
 
-tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the same parser, which pytest itself requires there
+    tomllib = pytest.importorskip("tomli")
 Requirement = pytest.importorskip("packaging.requirements").Requirement
 
 ROOT = Path(__file__).resolve().parents[1]

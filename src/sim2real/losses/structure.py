@@ -42,9 +42,9 @@ STRUCTURES = ("ms_ssim", "edges")
 
 def gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
     """``kornia.filters.gaussian_blur2d(x, (k, k), (sigma, sigma))`` with k = 2 ceil(3 sigma) + 1
-    (reflected borders), the same values (tested) without a host sync: kornia checks that sigma is
-    positive by reading back a tensor it makes without a device, which inside a device context (on
-    a GPU) is a copy to the device and a read back on every call. Here the kernel is made from a
+    (reflected borders), the same values (tested) without a host sync: kornia 0.9 checks that sigma
+    is positive by reading back a tensor it makes without a device, which inside a device context
+    (on a GPU) is a copy to the device and a read back on every call. Here the kernel is made from a
     sigma on x's device."""
     k = 2 * math.ceil(3 * sigma) + 1
     kernel = kornia.filters.get_gaussian_kernel1d(k, torch.full((1, 1), float(sigma), device=x.device, dtype=x.dtype))
