@@ -113,9 +113,9 @@ def _network_gflop(run, device, scene_name, gbuffer) -> float:
     from sim2real.inference.model import load_run
 
     model = load_run(run, device=device, precision="fp32")
-    seq = model.method.sequence(model.gen, model.scene(scene_name).index, model.device)
+    translator = model.sequence(scene_name, batch=1).translator  # the method's, without inference mode
     with torch.no_grad():
-        return count_gflop(lambda: seq.push([gbuffer]))
+        return count_gflop(lambda: translator.push([gbuffer]))
 
 
 def _matmul_gflops(device: str, dtype: torch.dtype, repeats: int = 10) -> float:
