@@ -108,3 +108,26 @@ def test_a_file_in_the_way_of_an_output_folder_is_one_line(tmp_path):
             atomic_write_text(target, "y")
         assert _one_line(e) == f"cannot write {target}: {tmp_path / 'a.png'} is a file, not a folder"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"]  # nothing else written
+
+
+def test_link_or_copy_links_replaces_and_copies_where_links_fail(tmp_path, monkeypatch):
+    import os
+
+    from sim2real.fileio import link_or_copy
+
+    src, dst = tmp_path / "src.bin", tmp_path / "out" / "dst.bin"
+    src.write_bytes(b"frame")
+    link_or_copy(src, dst)
+    assert os.stat(dst).st_ino == os.stat(src).st_ino  # the same file
+    other = tmp_path / "other.bin"
+    other.write_bytes(b"second")
+    link_or_copy(other, dst)  # an existing name is replaced
+    assert dst.read_bytes() == b"second"
+
+    def no_link(a, b):
+        raise OSError(18, "Invalid cross-device link")
+
+    monkeypatch.setattr(os, "link", no_link)
+    link_or_copy(src, dst)
+    assert dst.read_bytes() == b"frame" and os.stat(dst).st_ino != os.stat(src).st_ino
+    assert sorted(p.name for p in dst.parent.iterdir()) == ["dst.bin"]  # no temporary left

@@ -10,6 +10,7 @@ import contextlib
 import io
 import json
 import os
+import shutil
 import tempfile
 import threading
 from pathlib import Path
@@ -74,6 +75,17 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     if _deferred is not None:
         with _deferred_lock:
             _deferred.append(str(path))
+
+
+def link_or_copy(src: str | os.PathLike, dst: str | os.PathLike) -> None:
+    """Hard-link ``src`` to ``dst`` through a temporary name (an existing ``dst`` is replaced at
+    once); copy where a link cannot be made (across file systems)."""
+    with atomic_path(dst) as tmp:
+        tmp.unlink()
+        try:
+            os.link(src, tmp)
+        except OSError:
+            shutil.copyfile(src, tmp)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

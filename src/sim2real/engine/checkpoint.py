@@ -34,7 +34,6 @@ import os
 import pickle
 import random
 import re
-import shutil
 import warnings
 from pathlib import Path
 from typing import BinaryIO
@@ -43,7 +42,7 @@ import numpy as np
 import torch
 
 from sim2real.errors import UserError, reason
-from sim2real.fileio import atomic_path
+from sim2real.fileio import atomic_path, link_or_copy
 
 FORMAT = "sim2real-train/1"
 LAST = "last.pt"
@@ -145,14 +144,7 @@ def save_checkpoint(path: str | os.PathLike, state: dict) -> Path:
 def keep_copy(path: Path, step: int) -> Path:
     """Also keep the checkpoint at ``path`` as ``step_NNNNNNN.pt`` (a hard link when possible)."""
     dst = path.parent / step_name(step)
-    if dst.exists():
-        dst.unlink()
-    try:
-        os.link(path, dst)
-    except OSError:
-
-        with atomic_path(dst) as tmp:
-            shutil.copyfile(path, tmp)
+    link_or_copy(path, dst)
     return dst
 
 
