@@ -128,6 +128,10 @@ def test_sampler_thins_every_frame_alike_under_its_budget():
     holes[:8] = False  # no surface in the top half: only surface pixels are taken
     s.add(3, holes, pts)
     assert len(s.frame(3)[0]) == 2 and (s.frame(3)[0] >= 8).all()
+    few = PointSampler(budget=1, step=4)  # more frames than points allowed: one point each, and it ends
+    for i in range(3):
+        few.add(i, mask, pts)
+    assert [len(few.frame(i)[0]) for i in range(3)] == [1, 1, 1]
 
 
 def test_pycolmap_reads_the_model(exported):

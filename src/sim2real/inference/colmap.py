@@ -43,7 +43,8 @@ class PointSampler:
     Frame ``i`` offers the surface pixels of a ``GRID_STEP`` grid (its offset moves with ``i`` so
     that neighbouring frames do not sample the same pixels). All frames keep every ``thin``-th of
     their grid points; ``thin`` doubles, and the stored frames are thinned alike, whenever more
-    than ``budget`` points are held, so every frame keeps the same share."""
+    than ``budget`` points are held, so every frame keeps the same share (at least one point
+    each: a video of more frames than ``budget`` keeps one per frame)."""
 
     def __init__(self, budget: int = POINTS_BUDGET, step: int = GRID_STEP):
         self.budget, self.step, self.thin = int(budget), int(step), 1
@@ -64,7 +65,7 @@ class PointSampler:
             sel = slice(None, None, self.thin)
             self._frames[i] = (rows[sel], cols[sel], xyz[sel])
             self._count += len(self._frames[i][0])
-            while self._count > self.budget:
+            while self._count > self.budget and any(len(v[0]) > 1 for v in self._frames.values()):
                 self.thin *= 2
                 self._frames = {k: tuple(a[::2] for a in v) for k, v in self._frames.items()}
                 self._count = sum(len(v[0]) for v in self._frames.values())
