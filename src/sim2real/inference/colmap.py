@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from PIL import Image
 
 from sim2real.fileio import atomic_write_text, link_or_copy
+from sim2real.footage.decode import read_image
 from sim2real.scene.camera import invert_rigid, rotation_to_quaternion
 
 GRID_STEP = 8
@@ -75,11 +75,6 @@ class PointSampler:
         return self._frames.get(i, (np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))
 
 
-def _rgb(path: Path) -> np.ndarray:
-    with Image.open(path) as im:
-        return np.asarray(im.convert("RGB"))
-
-
 def write_colmap(folder: Path, Ks: Sequence[np.ndarray], c2w: Sequence[np.ndarray], width: int, height: int,
                  images: Sequence[Path], points: PointSampler) -> None:
     """Write ``folder`` (``colmap/``) for frames with intrinsics ``Ks``, camera-to-world poses
@@ -104,7 +99,7 @@ def write_colmap(folder: Path, Ks: Sequence[np.ndarray], c2w: Sequence[np.ndarra
         image_rows.append(f"{i + 1} {qw:.12g} {qx:.12g} {qy:.12g} {qz:.12g} {tx:.10g} {ty:.10g} {tz:.10g} "
                           f"{camera_of[i]} {name}")
         rows, cols, xyz = points.frame(i)
-        colours = _rgb(images[i])[rows, cols] if len(rows) else np.zeros((0, 3), np.uint8)
+        colours = read_image(images[i])[rows, cols] if len(rows) else np.zeros((0, 3), np.uint8)
         ids = range(point_id, point_id + len(rows))
         # Observations at the sampled pixels' centres (COLMAP's and the project's (col + 0.5, row + 0.5)).
         image_rows.append(" ".join(f"{c + 0.5:g} {r + 0.5:g} {p}" for r, c, p in zip(rows, cols, ids)))
