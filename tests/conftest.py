@@ -14,6 +14,27 @@ def plane_mesh(z: float = 0.0, half: float = 500.0) -> trimesh.Trimesh:
     return trimesh.Trimesh(v, np.array([[0, 1, 2], [0, 2, 3]]), process=False)
 
 
+BOX_LO, BOX_HI = np.array([-6.0, -6.0, 20.0]), np.array([6.0, 6.0, 30.0])
+
+
+@pytest.fixture(scope="module")
+def hiding_scene():
+    """A plane at z = 0 (liver) and a box between BOX_LO and BOX_HI above it (gallbladder)."""
+    box = trimesh.creation.box(bounds=np.stack([BOX_LO, BOX_HI]))
+    return Scene("hiding", [SceneObject("floor", "liver", plane_mesh()), SceneObject("box", "gallbladder", box)],
+                 CameraRegion([0, 0, 100], [5, 5, 5]))
+
+
+def segment_hits_box(p, q, lo=BOX_LO, hi=BOX_HI):
+    """Slab test: does the open segment p -> q pass through the box [lo, hi]? (independent of Embree)"""
+    d = q - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - p) / d, (hi - p) / d
+    tmin = np.nanmax(np.minimum(t1, t2), axis=-1)
+    tmax = np.nanmin(np.maximum(t1, t2), axis=-1)
+    return (tmax >= tmin) & (tmax > 1e-6) & (tmin < 1 - 1e-6)
+
+
 def sphere_mesh(centre, radius: float, subdivisions: int = 6) -> trimesh.Trimesh:
     m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
     m.apply_translation(centre)

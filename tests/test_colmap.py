@@ -9,7 +9,6 @@ import pytest
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from sim2real.inference.colmap import PointSampler
 from sim2real.inference.export import export_ground_truth
 
 T = 5
@@ -110,28 +109,6 @@ def test_intrinsics_that_vary_give_a_camera_per_frame_and_points_take_a_ref(expo
     for (x, y), p in zip(xy, pid):
         assert np.array_equal(points[p][1], a_ref[int(y), int(x)])
     assert "one camera per frame" in (tmp_path / "colmap" / "README.txt").read_text()
-
-
-def test_sampler_thins_every_frame_alike_under_its_budget():
-    mask = np.ones((16, 16), bool)
-    pts = np.zeros((16, 16, 3))
-    s = PointSampler(budget=20, step=4)  # 16 grid points per frame
-    s.add(0, mask, pts)
-    assert len(s.frame(0)[0]) == 16 and s.thin == 1
-    s.add(1, mask, pts)  # 32 > 20: every frame keeps every other of its grid points
-    assert s.thin == 2 and [len(s.frame(i)[0]) for i in (0, 1)] == [8, 8]
-    s.add(2, mask, pts)  # 8 + 8 + 8 = 24 > 20: every fourth
-    assert s.thin == 4 and [len(s.frame(i)[0]) for i in (0, 1, 2)] == [4, 4, 4]
-    rows, cols, _ = s.frame(1)
-    assert set(rows % 4) == {3} and set(cols % 4) == {1}  # frame 1's grid is offset by (3, 5 mod 4)
-    holes = np.ones((16, 16), bool)
-    holes[:8] = False  # no surface in the top half: only surface pixels are taken
-    s.add(3, holes, pts)
-    assert len(s.frame(3)[0]) == 2 and (s.frame(3)[0] >= 8).all()
-    few = PointSampler(budget=1, step=4)  # more frames than points allowed: one point each, and it ends
-    for i in range(3):
-        few.add(i, mask, pts)
-    assert [len(few.frame(i)[0]) for i in range(3)] == [1, 1, 1]
 
 
 def test_pycolmap_reads_the_model(exported):

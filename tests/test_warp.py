@@ -1,31 +1,11 @@
 import numpy as np
 import pytest
-import trimesh
-from conftest import plane_mesh
+from conftest import plane_mesh, segment_hits_box
 
 from sim2real.render.raycast import RayCaster
 from sim2real.render.warp import correspondences, flow, warp_image
 from sim2real.scene.camera import Camera, intrinsics_from_fov, look_at, pixel_centres
 from sim2real.scene.scene import CameraRegion, Scene, SceneObject
-
-BOX_LO, BOX_HI = np.array([-6.0, -6.0, 20.0]), np.array([6.0, 6.0, 30.0])
-
-
-@pytest.fixture(scope="module")
-def hiding_scene():
-    box = trimesh.creation.box(bounds=np.stack([BOX_LO, BOX_HI]))
-    return Scene("hiding", [SceneObject("floor", "liver", plane_mesh()), SceneObject("box", "gallbladder", box)],
-                 CameraRegion([0, 0, 100], [5, 5, 5]))
-
-
-def _segment_hits_box(p, q):
-    """Slab test: does the open segment p -> q pass through the box? (independent of Embree)"""
-    d = q - p
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1, t2 = (BOX_LO - p) / d, (BOX_HI - p) / d
-    tmin = np.nanmax(np.minimum(t1, t2), axis=-1)
-    tmax = np.nanmin(np.maximum(t1, t2), axis=-1)
-    return (tmax >= tmin) & (tmax > 1e-6) & (tmin < 1 - 1e-6)
 
 
 def test_occluded_points_are_masked(hiding_scene):
@@ -36,7 +16,7 @@ def test_occluded_points_are_masked(hiding_scene):
     gi, gj = caster.render(ci), caster.render(cj)
     uv, visible = correspondences(gi, gj)
     floor = gi.object_id == 0
-    hidden = floor & _segment_hits_box(gi.points.astype(np.float64), cj.position)
+    hidden = floor & segment_hits_box(gi.points.astype(np.float64), cj.position)
     inside = (uv[..., 0] >= 0) & (uv[..., 0] < 128) & (uv[..., 1] >= 0) & (uv[..., 1] < 96)
     assert hidden.sum() > 100  # the scene really hides part of the floor from view j
     # Every floor point that the box hides from j is masked (the authors' sign error kept them).

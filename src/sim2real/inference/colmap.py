@@ -16,12 +16,11 @@ Lengths are the project's millimetres.
 
 The points are not a reconstruction: each is a ray-cast surface point of one frame, on a pixel
 grid, observed in that frame only (its track has one element, its reprojection error is 0).
-:class:`PointSampler` keeps at most about ``budget`` of them over a video of any length.
+:func:`colmap_sampler` keeps at most about ``POINTS_BUDGET`` of them over a video of any length.
 """
 
 from __future__ import annotations
 
-import threading
 from pathlib import Path
 from typing import Sequence
 
@@ -29,6 +28,7 @@ import numpy as np
 
 from sim2real.fileio import atomic_write_text, link_or_copy
 from sim2real.footage.decode import read_image
+from sim2real.inference.surface_points import PointSampler
 from sim2real.scene.camera import invert_rigid, rotation_to_quaternion
 
 GRID_STEP = 8
@@ -37,42 +37,9 @@ POINTS_BUDGET = 100_000
 """Most points the model keeps; a long video's frames are thinned evenly to stay under it."""
 
 
-class PointSampler:
-    """Surface points of a video's frames, added from several threads in any frame order.
-
-    Frame ``i`` offers the surface pixels of a ``GRID_STEP`` grid (its offset moves with ``i`` so
-    that neighbouring frames do not sample the same pixels). All frames keep every ``thin``-th of
-    their grid points; ``thin`` doubles, and the stored frames are thinned alike, whenever more
-    than ``budget`` points are held, so every frame keeps the same share (at least one point
-    each: a video of more frames than ``budget`` keeps one per frame)."""
-
-    def __init__(self, budget: int = POINTS_BUDGET, step: int = GRID_STEP):
-        self.budget, self.step, self.thin = int(budget), int(step), 1
-        self._frames: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # i -> rows, cols, xyz
-        self._count = 0
-        self._lock = threading.Lock()
-
-    def add(self, i: int, mask: np.ndarray, points: np.ndarray) -> None:
-        """Frame ``i``'s surface mask (H, W) and world points (H, W, 3)."""
-        s = self.step
-        h, w = mask.shape
-        r0, c0 = (i * 3) % s, (i * 5) % s
-        rows, cols = np.meshgrid(np.arange(r0, h, s), np.arange(c0, w, s), indexing="ij")
-        keep = mask[rows, cols]
-        rows, cols = rows[keep], cols[keep]
-        xyz = points[rows, cols].astype(np.float64)
-        with self._lock:
-            sel = slice(None, None, self.thin)
-            self._frames[i] = (rows[sel], cols[sel], xyz[sel])
-            self._count += len(self._frames[i][0])
-            while self._count > self.budget and any(len(v[0]) > 1 for v in self._frames.values()):
-                self.thin *= 2
-                self._frames = {k: tuple(a[::2] for a in v) for k, v in self._frames.items()}
-                self._count = sum(len(v[0]) for v in self._frames.values())
-
-    def frame(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Rows, columns and world points (mm) kept of frame ``i``."""
-        return self._frames.get(i, (np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))
+def colmap_sampler() -> PointSampler:
+    """The sampler of the model's points; each frame adds its ``points`` (H, W, 3), mm."""
+    return PointSampler(POINTS_BUDGET, GRID_STEP)
 
 
 def write_colmap(folder: Path, Ks: Sequence[np.ndarray], c2w: Sequence[np.ndarray], width: int, height: int,
@@ -98,7 +65,8 @@ def write_colmap(folder: Path, Ks: Sequence[np.ndarray], c2w: Sequence[np.ndarra
         tx, ty, tz = w2c[:3, 3]
         image_rows.append(f"{i + 1} {qw:.12g} {qx:.12g} {qy:.12g} {qz:.12g} {tx:.10g} {ty:.10g} {tz:.10g} "
                           f"{camera_of[i]} {name}")
-        rows, cols, xyz = points.frame(i)
+        rows, cols, fields = points.frame(i)
+        xyz = fields["points"].astype(np.float64) if len(rows) else np.zeros((0, 3))
         colours = read_image(images[i])[rows, cols] if len(rows) else np.zeros((0, 3), np.uint8)
         ids = range(point_id, point_id + len(rows))
         # Observations at the sampled pixels' centres (COLMAP's and the project's (col + 0.5, row + 0.5)).

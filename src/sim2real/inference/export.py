@@ -14,13 +14,15 @@
       poses_tum_mm.txt        camera-to-world poses, TUM rows, millimetres
       tum/                    a TUM RGB-D sequence folder (metres, depth scale 5000)
       colmap/                 a COLMAP model: the frames, exact cameras, sampled surface points
+      tracks/                 long-range point tracks: surface points' positions and visibility in every frame
       ground_truth.json       manifest; written last (its presence marks a complete export)
 
 Units: the project's own files use millimetres (``depth/`` in 0.1 mm steps). The ``tum/``
 folder follows the TUM RGB-D benchmark exactly (groundtruth in metres, depth PNG value =
 metres * 5000, i.e. 0.2 mm steps; intrinsics with pixel centres at integer coordinates), so
 that SLAM code written for TUM RGB-D runs on it unchanged; ``colmap/``
-(:mod:`sim2real.inference.colmap`) is for tools that start from COLMAP's output. docs/formats.md ("Ground-truth
+(:mod:`sim2real.inference.colmap`) is for tools that start from COLMAP's output; ``tracks/``
+(:mod:`sim2real.inference.tracks`) is for point trackers. docs/formats.md ("Ground-truth
 export") is the full description.
 
 Saturation: a 16-bit depth PNG holds at most 65535, i.e. 6553.5 mm (``depth/``) or 13107 mm
@@ -41,7 +43,7 @@ import numpy as np
 
 from sim2real.errors import UserError
 from sim2real.fileio import atomic_write_bytes, atomic_write_image, atomic_write_json, atomic_write_text, link_or_copy
-from sim2real.inference.colmap import PointSampler, write_colmap
+from sim2real.inference.colmap import colmap_sampler, write_colmap
 from sim2real.inference.gt_formats import (
     DEPTH_PNG_SCALE,
     TUM_DEPTH_SCALE,
@@ -52,6 +54,7 @@ from sim2real.inference.gt_formats import (
     pose_rows,
     write_flo,
 )
+from sim2real.inference.tracks import point_tracks, tracks_sampler, write_tracks
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.reference import reference_rendering, to_uint8
 from sim2real.render.warp import flow as gt_flow
@@ -70,7 +73,7 @@ CONVENTION = (
 
 # Names this export writes into OUT; an existing one means an earlier export is there.
 _OUTPUTS = ("depth", "depth_npy", "flow", "flow_mask", "labels", "labels_color", "intrinsics.json",
-            "poses_tum_mm.txt", "tum", "colmap", "ground_truth.json")
+            "poses_tum_mm.txt", "tum", "colmap", "tracks", "ground_truth.json")
 
 
 def _name(i: int, ext: str) -> str:
@@ -167,10 +170,10 @@ class GroundTruthWriter:
     ``i + 1`` arrives (its flow needs both views); at most ``2 * threads`` frames are in flight
     and only the newest G-buffer is kept, so a trajectory of any length needs neither the memory
     nor the disk for its G-buffers. :meth:`close` writes the last frame, then the files that
-    need every frame (intrinsics, poses, the TUM lists, the COLMAP model, the manifest, last)
-    and links the video's RGB frames ``rgb_frames_rel`` (as in :func:`export_ground_truth`),
-    which must exist by then; without them each frame's a_ref is written into ``tum/rgb/``
-    (and the COLMAP model's points are coloured by it). A write error
+    need every frame (intrinsics, poses, the TUM lists, the COLMAP model, the point tracks, the
+    manifest, last) and links the video's RGB frames ``rgb_frames_rel`` (as in
+    :func:`export_ground_truth`), which must exist by then; without them each frame's a_ref is
+    written into ``tum/rgb/`` (and the COLMAP model's points are coloured by it). A write error
     is raised at the next :meth:`add` or at :meth:`close`; an error of the caller leaves no
     manifest.
     """
@@ -196,7 +199,8 @@ class GroundTruthWriter:
         self._c2w: list[np.ndarray] = []
         self._table: ClassTable | None = None
         self._size: tuple[int, int] | None = None
-        self._points = PointSampler()
+        self._points = colmap_sampler()
+        self._queries = tracks_sampler()
 
     def __enter__(self) -> "GroundTruthWriter":
         return self
@@ -252,7 +256,8 @@ class GroundTruthWriter:
         atomic_write_bytes(tum / "depth" / _name(i, "png"), png16_bytes(depth_to_png16(depth, TUM_DEPTH_SCALE / 1000.0)))
         if self.rgb_frames_rel is None:
             atomic_write_image(tum / "rgb" / _name(i, "png"), to_uint8(reference_rendering(g)))
-        self._points.add(i, g.mask, g.points)
+        self._points.add(i, g.mask, points=g.points)
+        self._queries.add(i, g.mask, points=g.points, normal=g.normal, labels=labels)
 
     def close(self) -> dict:
         """Finish the export: the last frame, the files of the whole video, ``ground_truth.json``
@@ -312,6 +317,9 @@ class GroundTruthWriter:
                       if rgb_frames_rel is not None else "the reference rendering a_ref of each frame (no translated frames were given)")
         atomic_write_text(tum / "README.txt", _tum_readme(n, fps, K_tum, w, h, rgb_source, constant_K))
         write_colmap(out / "colmap", Ks, c2w, w, h, [tum / r for r in rgb_names], self._points)
+        tracks = point_tracks(Ks, [invert_rigid(p) for p in c2w], lambda j: np.load(out / "depth_npy" / _name(j, "npy")),
+                              self._queries)
+        write_tracks(out / "tracks", tracks, w, h)
 
         manifest = {
             "format": FORMAT,
@@ -331,7 +339,7 @@ class GroundTruthWriter:
                 "depth": "depth/%06d.png", "depth_npy": "depth_npy/%06d.npy", "flow": "flow/%06d.flo",
                 "flow_mask": "flow_mask/%06d.png", "labels": "labels/%06d.png", "labels_color": "labels_color/%06d.png",
                 "intrinsics": "intrinsics.json", "poses": "poses_tum_mm.txt", "tum": "tum/",
-                "colmap": "colmap/",
+                "colmap": "colmap/", "tracks": "tracks/tracks.npz",
             },
         }
         atomic_write_json(out / "ground_truth.json", manifest)

@@ -30,23 +30,38 @@ OCCLUSION_EPS_MM = 1.0
 MAX_SLOPE = float(np.tan(np.radians(85.0)))
 
 
+def visible_from(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, K: np.ndarray,
+                 world_to_camera: np.ndarray, depth: np.ndarray,
+                 eps: float = OCCLUSION_EPS_MM) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where surface points (..., 3), with unit normals (..., 3), land in a view with intrinsics
+    ``K``, pose ``world_to_camera`` and z-depth buffer ``depth`` (H, W; 0 = no surface), and
+    whether the view sees them (the rule above; points where ``valid`` is False are not seen).
+    Returns (u, v) pixel positions (..., 2) in float64 (NaN where the projection is undefined),
+    the points' z-depth in the view (...), and the visibility mask (...)."""
+    height, width = depth.shape
+    points = np.asarray(points, dtype=np.float64)
+    uv, z = project(points, K, world_to_camera)
+    finite = np.nan_to_num(uv, nan=-1.0, posinf=-1.0, neginf=-1.0)
+    col = np.floor(finite[..., 0]).astype(np.int64)
+    row = np.floor(finite[..., 1]).astype(np.int64)
+    inside = valid & (z > 1e-6) & (col >= 0) & (col < width) & (row >= 0) & (row < height)
+    depth_here = np.zeros(z.shape, np.float64)
+    depth_here[inside] = depth[row[inside], col[inside]]
+    ray = points - Camera(K, world_to_camera, height, width).position
+    ray /= np.maximum(np.linalg.norm(ray, axis=-1, keepdims=True), 1e-12)
+    cos = np.clip(np.abs((ray * normals).sum(-1)), 1e-6, 1.0)
+    slope = np.minimum(np.sqrt(1.0 - cos**2) / cos, MAX_SLOPE)
+    tol = eps + z / min(K[0, 0], K[1, 1]) * slope
+    visible = inside & (depth_here > 0) & ~(z > depth_here + tol)
+    return uv, z, visible
+
+
 def correspondences(gi: GBuffer, gj: GBuffer, eps: float = OCCLUSION_EPS_MM) -> tuple[np.ndarray, np.ndarray]:
     """Positions in view j of view i's pixels, (H_i, W_i, 2) as (u, v) pixel coordinates
     (centre of pixel (c, r) at (c + .5, r + .5)), and a boolean mask of the pixels of i that are
     visible in j. Positions are only meaningful where the mask is True."""
-    uv, z = project(gi.points.astype(np.float64), gj.K, gj.world_to_camera)
+    uv, _, visible = visible_from(gi.points, gi.normal, gi.mask, gj.K, gj.world_to_camera, gj.depth, eps)
     uv = np.nan_to_num(uv, nan=-1.0, posinf=-1.0, neginf=-1.0)
-    col = np.floor(uv[..., 0]).astype(np.int64)
-    row = np.floor(uv[..., 1]).astype(np.int64)
-    inside = gi.mask & (z > 1e-6) & (col >= 0) & (col < gj.width) & (row >= 0) & (row < gj.height)
-    depth_j = np.zeros(gi.depth.shape, np.float64)
-    depth_j[inside] = gj.depth[row[inside], col[inside]]
-    ray = gi.points.astype(np.float64) - Camera(gj.K, gj.world_to_camera, gj.height, gj.width).position
-    ray /= np.maximum(np.linalg.norm(ray, axis=-1, keepdims=True), 1e-12)
-    cos = np.clip(np.abs((ray * gi.normal).sum(-1)), 1e-6, 1.0)
-    slope = np.minimum(np.sqrt(1.0 - cos**2) / cos, MAX_SLOPE)
-    tol = eps + z / min(gj.K[0, 0], gj.K[1, 1]) * slope
-    visible = inside & (depth_j > 0) & ~(z > depth_j + tol)
     return uv.astype(np.float32), visible
 
 
