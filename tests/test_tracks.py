@@ -101,3 +101,18 @@ def test_next_frame_agrees_with_the_flow(exported):
         if mask[row, col]:
             f = read_flo(out / "flow" / f"{i:06d}.flo")[row, col]
             assert np.abs(d["tracks"][n, i + 1] - (u + f[0], v + f[1])).max() < 1e-3
+
+
+def test_each_frame_projects_with_its_own_intrinsics(exported, tmp_path):
+    import dataclasses
+
+    _, _, cams, gbuffers, _ = exported
+    K1 = cams[1].K.copy()
+    K1[0, 0] *= 1.5  # frame 1 zooms in horizontally
+    export_ground_truth([gbuffers[0], dataclasses.replace(gbuffers[1], K=K1)], tmp_path)
+    d = np.load(tmp_path / "tracks" / "tracks.npz")
+    X = d["points_mm"].astype(np.float64)
+    zoomed = dataclasses.replace(cams[1], K=K1)
+    uv, z = _project(X, zoomed)
+    assert (z > 0).all() and np.abs(d["tracks"][:, 1] - uv).max() < 1e-3
+    assert np.abs(_project(X, cams[1])[0] - uv).max() > 1.0  # frame 1's original K would be pixels off
