@@ -46,12 +46,15 @@ def point_tracks(Ks: Sequence[np.ndarray], world_to_camera: Sequence[np.ndarray]
     """The tracks of ``queries`` through the frames with intrinsics ``Ks``, poses ``world_to_camera``
     and z-depth buffers ``depth_of(j)`` (mm, 0 = no surface), as the arrays of ``tracks.npz``."""
     n = len(Ks)
-    per_frame = [queries.frame(i) for i in range(n)]
-    kept = [(i, f) for i, (rows, _, f) in enumerate(per_frame) if len(rows)]
+    kept = [(i, f) for i in range(n) for rows, _, f in [queries.frame(i)] if len(rows)]
+
+    def joined(name: str, empty: np.ndarray) -> np.ndarray:
+        return np.concatenate([f[name] for _, f in kept] or [empty])
+
     query_frame = np.concatenate([np.full(len(f["points"]), i, np.int32) for i, f in kept] or [np.zeros(0, np.int32)])
-    points = np.concatenate([f["points"] for _, f in kept] or [np.zeros((0, 3))]).astype(np.float64)
-    normals = np.concatenate([f["normal"] for _, f in kept] or [np.zeros((0, 3))]).astype(np.float64)
-    labels = np.concatenate([f["labels"] for _, f in kept] or [np.zeros(0, np.uint8)]).astype(np.uint8)
+    points = joined("points", np.zeros((0, 3))).astype(np.float64)
+    normals = joined("normal", np.zeros((0, 3))).astype(np.float64)
+    labels = joined("labels", np.zeros(0, np.uint8)).astype(np.uint8)
     tracks = np.full((len(points), n, 2), np.nan, np.float32)
     visible = np.zeros((len(points), n), bool)
     valid = np.ones(len(points), bool)
@@ -74,8 +77,8 @@ def write_tracks(folder: Path, arrays: dict[str, np.ndarray], width: int, height
     atomic_write_text(folder / "README.txt", "\n".join([
         "Point tracks exported by sim2real: exact, from the scene's geometry",
         "",
-        f"{n} surface points over {t} frames of {width}x{height} pixels; each point is seen in "
-        f"{np.median(seen) if n else 0:g} frames (median)",
+        f"{n} surface points over {t} frames of {width}x{height} pixels"
+        + (f"; each point is seen in {np.median(seen):g} frames (median)" if n else ""),
         "tracks.npz (numpy.load):",
         "  tracks (N, T, 2) float32   (x, y) pixel position of point n in frame t, the centre of the",
         "                             top-left pixel at (0.5, 0.5); given where hidden or outside the",
