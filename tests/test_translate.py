@@ -75,6 +75,47 @@ def test_translate_trajectory(inputs, tmp_path, capsys):
     assert not list(tmp_path.glob(".out.partial-*"))  # written beside it, then renamed into place
 
 
+def test_translate_stereo_pair(inputs, tmp_path, capsys):
+    """--stereo: each eye's frames are the model's translation of that eye's view (a time-independent
+    method gives the same pixels wherever a view appears), each eye has its ground truth, and the
+    disparity is fx * baseline / depth of the left view."""
+    from sim2real.inference.gt_formats import read_tum_poses
+    from sim2real.inference.stereo import right_camera
+
+    out = tmp_path / "stereo"
+    code, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
+                    "--out", out, "--batch", 3, "--device", "cpu", "--no-progress", "--stereo", 4)
+    assert code == 0, err
+    cams = Trajectory.load(inputs["traj"]).cameras  # as translate reads them
+    model = load_run(inputs["run"], "cpu")
+    name = f"procedural_{SCENE_SEED:04d}"
+    left_g = [inputs["caster"].render(c) for c in cams]
+    right_g = [inputs["caster"].render(right_camera(c, 4.0)) for c in cams]
+    for eye, g in ((out, left_g), (out / "right", right_g)):
+        want = model.translate_gbuffers(name, g, batch=3)
+        assert all(np.array_equal(png(eye / "frames" / f"{i:06d}.png"), want[i]) for i in range(5))
+        assert read_video(eye / "video.mp4") == (5, H, W)
+        assert json.loads((eye / "ground_truth" / "ground_truth.json").read_text())["frames"] == 5
+    assert not np.array_equal(png(out / "frames" / "000000.png"), png(out / "right" / "frames" / "000000.png"))
+    for pl, pr in zip(read_tum_poses(out / "ground_truth" / "poses_tum_mm.txt"),
+                      read_tum_poses(out / "right" / "ground_truth" / "poses_tum_mm.txt")):
+        assert np.allclose(pr[:3, 3], pl[:3, 3] + 4.0 * pl[:3, 0], atol=1e-4) and np.allclose(pr[:3, :3], pl[:3, :3], atol=1e-6)
+    st = json.loads((out / "stereo" / "stereo.json").read_text())
+    assert st["baseline_mm"] == 4.0 and st["frames"] == 5 and np.allclose(st["K"], cams[0].K)
+    for i in range(5):
+        depth = np.load(out / "ground_truth" / "depth_npy" / f"{i:06d}.npy")
+        d = np.load(out / "stereo" / "disparity" / f"{i:06d}.npy")
+        assert np.allclose(d[depth > 0], cams[i].K[0, 0] * 4.0 / depth[depth > 0], rtol=1e-6) and (d[depth == 0] == 0).all()
+        mask = png(out / "stereo" / "disparity_mask" / f"{i:06d}.png")
+        assert 0.5 < (mask[depth > 0] == 255).mean() and not mask[depth == 0].any()
+    manifest = json.loads((out / "translate.json").read_text())
+    assert manifest["stereo"] == {"baseline_mm": 4.0, "right": "right/", "stereo": "stereo/"}
+
+    code, err = cli(capsys, "translate", inputs["run"], "--views", out, "--stereo", 4, "--out", tmp_path / "x")
+    assert code == 2 and one_line(err) == ("sim2real: error: --stereo needs --scene SCENE --trajectory FILE: "
+                                           "a views folder has one camera per view")
+
+
 def test_default_batch_by_device():
     from sim2real.inference.model import translate_batch
 

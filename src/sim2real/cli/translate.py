@@ -2,10 +2,12 @@
 
     sim2real translate RUN --scene SCENE --trajectory FILE --out DIR [--batch B] [--device auto|cpu|cuda]
                        [--precision auto|fp32|bf16] [--compile] [--checkpoint PATH] [--fps F] [--workers N]
+                       [--stereo MM]
     sim2real translate RUN --views VIEWS_DIR --out DIR [...]
 
 Writes DIR/frames/000000.png ..., DIR/video.mp4, DIR/ground_truth/ and DIR/translate.json
-(docs/formats.md, "Translate output").
+(docs/formats.md, "Translate output"); with --stereo also DIR/right/ (the right eye's frames,
+video and ground truth) and DIR/stereo/ (disparity).
 """
 
 from __future__ import annotations
@@ -33,6 +35,9 @@ def register(sub) -> None:
     p.add_argument("--fps", type=positive_float, help="video frame rate (default: the trajectory's, else 5)")
     p.add_argument("--workers", type=positive_int,
                    help="ray-casting processes (default: 1 for short or small trajectories, else one per core)")
+    p.add_argument("--stereo", type=positive_float, metavar="MM",
+                   help="also translate a right eye MM millimetres to the right of every camera (a rectified "
+                        "stereo pair, as a stereo laparoscope's; about 4-5 mm) with its disparity")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -47,12 +52,15 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("give either --views VIEWS_DIR or --scene SCENE --trajectory FILE, not both")
     if not args.views and not (args.scene and args.trajectory):
         raise UserError("give --scene SCENE and --trajectory FILE (or --views VIEWS_DIR)")
+    if args.views and args.stereo:
+        raise UserError("--stereo needs --scene SCENE --trajectory FILE: a views folder has one camera per view")
     model = load_run(args.run, args.device, args.checkpoint, args.precision, compile=args.compile)
     if emulated_bf16(model.device, model.amp):
         print(EMULATED_BF16, file=sys.stderr)
-    source = views_source(model, args.views) if args.views else trajectory_source(model, args.scene, args.trajectory)
+    source = (views_source(model, args.views) if args.views
+              else trajectory_source(model, args.scene, args.trajectory, args.stereo))
     m = translate_sequence(model, source, args.out, batch=args.batch, fps=args.fps, workers=args.workers,
                            progress=not args.no_progress)
     print(f"{m['frames']} frames of '{m['scene']}' ({m['width']}x{m['height']}, {m['fps']:g} fps) written to {args.out}: "
-          f"frames/, video.mp4, ground_truth/")
+          f"frames/, video.mp4, ground_truth/" + (", right/, stereo/" if m["stereo"] else ""))
     return 0

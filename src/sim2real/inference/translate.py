@@ -3,7 +3,7 @@
 :func:`translate_sequence` streams a trajectory (ray-cast in chunks, in-process or in a process
 pool) or a views folder through a :class:`~sim2real.inference.model.TrainedModel` and writes
 ``frames/``, ``video.mp4``, ``ground_truth/`` and ``translate.json`` (docs/formats.md,
-"Translate output").
+"Translate output"), and for a stereo pair the right eye's and the disparity.
 """
 
 from __future__ import annotations
@@ -12,9 +12,11 @@ import os
 import shutil
 import tempfile
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from sim2real.config import to_dict
@@ -24,6 +26,7 @@ from sim2real.fileio import atomic_write_json, deferred_fsync, fsync_files, prep
 from sim2real.inference.export import GroundTruthWriter
 from sim2real.inference.frames import chunked, iter_gbuffers, iter_view_files
 from sim2real.inference.model import TrainedModel, translate_batch
+from sim2real.inference.stereo import right_camera, write_stereo_frame, write_stereo_json
 from sim2real.inference.video import BackgroundFrameWriter, _rate
 from sim2real.render.gbuffer import GBuffer
 from sim2real.scene.scene import Scene
@@ -43,15 +46,19 @@ class TranslateSource:
     view_files: list[Path] | None = None
     fps: float = 5.0
     description: dict | None = None
+    stereo_mm: float | None = None
+    """Baseline of a right eye translated beside every camera (a trajectory only); None: one eye."""
 
     @property
     def frames(self) -> int:
         return len(self.cameras) if self.cameras is not None else len(self.view_files)
 
 
-def trajectory_source(model: TrainedModel, scene: str | os.PathLike, trajectory: str | os.PathLike) -> TranslateSource:
+def trajectory_source(model: TrainedModel, scene: str | os.PathLike, trajectory: str | os.PathLike,
+                      stereo_mm: float | None = None) -> TranslateSource:
     """``--scene`` (a scene folder, or the name of one of the run's scenes whose folder still
-    exists) and ``--trajectory`` -> a source; every input is checked before anything is written."""
+    exists) and ``--trajectory`` -> a source; every input is checked before anything is written.
+    ``stereo_mm``: also a right eye that far along each camera's x axis (:mod:`sim2real.inference.stereo`)."""
     path = Path(scene)
     if not (path / "scene.json").is_file() and str(scene) in model.infos:
         info = model.infos[str(scene)]
@@ -65,9 +72,11 @@ def trajectory_source(model: TrainedModel, scene: str | os.PathLike, trajectory:
     model.scene(sc.name)
     model.check_classes(sc.name, sc.classes, str(path), sc.class_table)
     traj = Trajectory.load(trajectory)
+    if stereo_mm is not None and not (np.isfinite(stereo_mm) and stereo_mm > 0):
+        raise UserError(f"the stereo baseline must be a positive number of millimetres, got {stereo_mm}")
     return TranslateSource(sc.name, path.resolve(), cameras=traj.cameras, fps=traj.fps,
                            description={"kind": "trajectory", "trajectory": str(Path(trajectory).resolve()),
-                                        "scene_dir": str(path.resolve())})
+                                        "scene_dir": str(path.resolve())}, stereo_mm=stereo_mm)
 
 
 def views_source(model: TrainedModel, views_dir: str | os.PathLike) -> TranslateSource:
@@ -96,7 +105,9 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
     (:class:`~sim2real.inference.video.BackgroundFrameWriter`) and to threads that write its
     ground truth (:class:`~sim2real.inference.export.GroundTruthWriter`) while the next chunk is
     translated; no G-buffer outlives its chunk by more than a few frames, so neither memory nor
-    disk grows with the trajectory beyond its output.
+    disk grows with the trajectory beyond its output. A source with ``stereo_mm`` also writes
+    the right eye's ``right/frames/``, ``right/video.mp4``, ``right/ground_truth/`` and the
+    pair's ``stereo/`` (:mod:`sim2real.inference.stereo`).
 
     Everything is written into a hidden sibling folder without a flush per file; when complete,
     all its files are flushed to disk at once and the folder is renamed to ``out``: a reader sees
@@ -125,39 +136,56 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
 def _translate_into(model: TrainedModel, source: TranslateSource, out: Path, batch: int, fps: float,
                     workers: int | None, progress: bool) -> dict:
     n = source.frames
-    frames_dir = out / "frames"
-    frames_dir.mkdir()
+    stereo = source.stereo_mm
+    eyes = [out, out / "right"] if stereo else [out]
+    for eye in eyes:
+        (eye / "frames").mkdir(parents=True)
     t0 = time.perf_counter()
     size: list[tuple[int, int]] = []
     if source.cameras is not None:
-        gbuffers = iter_gbuffers(source.scene_dir, source.cameras, workers=workers, chunk=batch)
+        # A stereo pair is cast side by side (left, right, left, ...): one pool, one stream.
+        cams = [c for cam in source.cameras for c in ((cam, right_camera(cam, stereo)) if stereo else (cam,))]
+        gbuffers = iter_gbuffers(source.scene_dir, cams, workers=workers, chunk=batch * len(eyes))
     else:
         gbuffers = iter_view_files(source.view_files)
     i = 0
-    seq = model.sequence(source.scene_name, batch)  # one sequence: a stateful method continues
-    # the frames are named relative to ground_truth/ (../frames/...)
-    with tqdm(total=n, desc="translate", unit="frame", disable=not progress) as bar, \
-            GroundTruthWriter(out / "ground_truth", fps, [f"../frames/{k:06d}.png" for k in range(n)]) as gt:
-        with BackgroundFrameWriter(frames_dir, out / "video.mp4", fps, depth=2 * batch) as writer:
+    # One sequence per eye: a stateful method continues each; the frames are named relative to
+    # ground_truth/ (../frames/...).
+    seqs = [model.sequence(source.scene_name, batch) for _ in eyes]
+    with tqdm(total=n, desc="translate", unit="frame", disable=not progress) as bar, ExitStack() as truths:
+        gts = [truths.enter_context(GroundTruthWriter(eye / "ground_truth", fps, [f"../frames/{k:06d}.png" for k in range(n)]))
+               for eye in eyes]
+        with ExitStack() as videos:
+            writers = [videos.enter_context(BackgroundFrameWriter(eye / "frames", eye / "video.mp4", fps, depth=2 * batch))
+                       for eye in eyes]
             if model.compiled:  # the first chunk compiles the networks: say why the bar waits
                 bar.set_description("translate (compiling the networks)")
-            for chunk in chunked(gbuffers, batch):
-                frames = seq.translate(chunk)
+            for chunk in chunked(gbuffers, batch * len(eyes)):
+                views = [chunk[e::len(eyes)] for e in range(len(eyes))]
+                outputs = [seq.translate(v) for seq, v in zip(seqs, views)]
                 bar.set_description("translate")
-                for f in frames:
-                    if not size:
-                        size.append(f.shape[:2])
-                    elif f.shape[:2] != size[0]:
-                        raise UserError(f"frame {i} is {f.shape[0]}x{f.shape[1]}, frame 0 is {size[0][0]}x{size[0][1]}; "
-                                        f"a video has one size")
-                    writer.put(f)
+                for k, frames in enumerate(zip(*outputs)):
+                    for f in frames:
+                        if not size:
+                            size.append(f.shape[:2])
+                        elif f.shape[:2] != size[0]:
+                            raise UserError(f"frame {i} is {f.shape[0]}x{f.shape[1]}, frame 0 is {size[0][0]}x{size[0][1]}; "
+                                            f"a video has one size")
+                    for writer, f in zip(writers, frames):
+                        writer.put(f)
+                    if stereo:
+                        write_stereo_frame(out / "stereo", i, views[0][k], views[1][k], stereo)
                     i += 1
                     bar.update()
-                for g in chunk:
-                    gt.add(g)
-        count = writer.count
+                for gt, v in zip(gts, views):
+                    for g in v:
+                        gt.add(g)
+        count = writers[0].count
         translate_s = time.perf_counter() - t0
-        gt.close()
+        for gt in gts:
+            gt.close()
+    if stereo:
+        write_stereo_json(out / "stereo", stereo, source.cameras[0].K, count)
     h, w = size[0]
     manifest = {
         "format": FORMAT,
@@ -176,6 +204,7 @@ def _translate_into(model: TrainedModel, source: TranslateSource, out: Path, bat
         "amp_bf16": model.amp,
         "compiled": model.compiled,
         "files": {"frames": "frames/%06d.png", "video": "video.mp4", "ground_truth": "ground_truth/"},
+        "stereo": None if stereo is None else {"baseline_mm": stereo, "right": "right/", "stereo": "stereo/"},
         "seconds": {"translate": round(translate_s, 3), "total": round(time.perf_counter() - t0, 3)},
     }
     atomic_write_json(out / "translate.json", manifest)
