@@ -29,7 +29,7 @@ import numpy as np
 from sim2real.fileio import atomic_write_text, link_or_copy
 from sim2real.footage.decode import read_image
 from sim2real.inference.surface_points import PointSampler
-from sim2real.scene.camera import invert_rigid, rotation_to_quaternion
+from sim2real.scene.camera import rotation_to_quaternion
 
 GRID_STEP = 8
 """Pixel step of the grid each frame's points are taken from before thinning."""
@@ -42,10 +42,10 @@ def colmap_sampler() -> PointSampler:
     return PointSampler(POINTS_BUDGET, GRID_STEP)
 
 
-def write_colmap(folder: Path, Ks: Sequence[np.ndarray], c2w: Sequence[np.ndarray], width: int, height: int,
+def write_colmap(folder: Path, Ks: Sequence[np.ndarray], w2c: Sequence[np.ndarray], width: int, height: int,
                  images: Sequence[Path], points: PointSampler) -> None:
-    """Write ``folder`` (``colmap/``) for frames with intrinsics ``Ks``, camera-to-world poses
-    ``c2w`` (mm) and RGB files ``images`` (hard-linked into ``images/``)."""
+    """Write ``folder`` (``colmap/``) for frames with intrinsics ``Ks``, world-to-camera poses
+    ``w2c`` (mm, as COLMAP stores them) and RGB files ``images`` (hard-linked into ``images/``)."""
     n = len(Ks)
     constant_K = all(np.array_equal(K, Ks[0]) for K in Ks)
     camera_of = [1] * n if constant_K else list(range(1, n + 1))
@@ -60,9 +60,8 @@ def write_colmap(folder: Path, Ks: Sequence[np.ndarray], c2w: Sequence[np.ndarra
     for i in range(n):
         name = f"{i:06d}" + images[i].suffix.lower()
         link_or_copy(images[i], folder / "images" / name)
-        w2c = invert_rigid(np.asarray(c2w[i], dtype=np.float64))
-        qx, qy, qz, qw = rotation_to_quaternion(w2c[:3, :3])
-        tx, ty, tz = w2c[:3, 3]
+        qx, qy, qz, qw = rotation_to_quaternion(w2c[i][:3, :3])
+        tx, ty, tz = w2c[i][:3, 3]
         image_rows.append(f"{i + 1} {qw:.12g} {qx:.12g} {qy:.12g} {qz:.12g} {tx:.10g} {ty:.10g} {tz:.10g} "
                           f"{camera_of[i]} {name}")
         rows, cols, fields = points.frame(i)

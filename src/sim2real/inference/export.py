@@ -196,7 +196,7 @@ class GroundTruthWriter:
         self._pending: collections.deque = collections.deque()
         self._last: GBuffer | None = None
         self._Ks: list[np.ndarray] = []
-        self._c2w: list[np.ndarray] = []
+        self._w2c: list[np.ndarray] = []  # the G-buffers' own poses; camera-to-world derived at close
         self._table: ClassTable | None = None
         self._size: tuple[int, int] | None = None
         self._points = colmap_sampler()
@@ -227,7 +227,7 @@ class GroundTruthWriter:
         elif g.class_table is not self._table:
             self._table = self._table.merged(g.class_table, " of one video")
         self._Ks.append(np.asarray(g.K, dtype=np.float64))
-        self._c2w.append(invert_rigid(g.world_to_camera))
+        self._w2c.append(np.asarray(g.world_to_camera, dtype=np.float64))
         if self._last is not None:
             self._submit(i - 1, self._last, g)
         self._last = g
@@ -289,7 +289,8 @@ class GroundTruthWriter:
         atomic_write_json(out / "intrinsics.json", intr)
 
         # Poses: the project's file (mm) and TUM's groundtruth.txt (m).
-        c2w = self._c2w
+        w2c = self._w2c
+        c2w = [invert_rigid(p) for p in w2c]
         head = ["# ground truth trajectory", "# file: 'sim2real export'"]
         mm_head = head + ["# sim2real trajectory v1", f"# width {w}", f"# height {h}"]
         if constant_K:
@@ -316,8 +317,8 @@ class GroundTruthWriter:
         rgb_source = ("the video's frames (" + str(Path(rgb_frames_rel[0]).parent) + "/), hard-linked or copied"
                       if rgb_frames_rel is not None else "the reference rendering a_ref of each frame (no translated frames were given)")
         atomic_write_text(tum / "README.txt", _tum_readme(n, fps, K_tum, w, h, rgb_source, constant_K))
-        write_colmap(out / "colmap", Ks, c2w, w, h, [tum / r for r in rgb_names], self._points)
-        tracks = point_tracks(Ks, [invert_rigid(p) for p in c2w], lambda j: np.load(out / "depth_npy" / _name(j, "npy")),
+        write_colmap(out / "colmap", Ks, w2c, w, h, [tum / r for r in rgb_names], self._points)
+        tracks = point_tracks(Ks, w2c, lambda j: np.load(out / "depth_npy" / _name(j, "npy")),
                               self._queries)
         write_tracks(out / "tracks", tracks, w, h)
 
