@@ -35,6 +35,18 @@ def segment_hits_box(p, q, lo=BOX_LO, hi=BOX_HI):
     return (tmax >= tmin) & (tmax > 1e-6) & (tmin < 1 - 1e-6)
 
 
+def private_outputs(root, scratch) -> list:
+    """The files and folders under ``root`` (``root`` too) whose permissions differ from what a
+    plain ``mkdir`` and ``open`` give in ``scratch`` under the same umask (0755 and 0644 under
+    022): an output made private by a temporary name's permissions shows up here."""
+    import os
+
+    (scratch / "plain").mkdir()
+    (scratch / "plain" / "f").write_text("")
+    want = {True: os.stat(scratch / "plain").st_mode, False: os.stat(scratch / "plain" / "f").st_mode}
+    return [p for p in [root, *root.rglob("*")] if not p.is_symlink() and os.lstat(p).st_mode != want[p.is_dir()]]
+
+
 def sphere_mesh(centre, radius: float, subdivisions: int = 6) -> trimesh.Trimesh:
     m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
     m.apply_translation(centre)

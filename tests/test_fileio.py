@@ -1,6 +1,7 @@
 """read_json and read_yaml: the parsed object of a good file, one UserError line naming the file
 otherwise; reason: a library's error in a few words."""
 
+import numpy as np
 import pytest
 
 from sim2real.config import read_yaml
@@ -131,3 +132,34 @@ def test_link_or_copy_links_replaces_and_copies_where_links_fail(tmp_path, monke
     link_or_copy(src, dst)
     assert dst.read_bytes() == b"frame" and os.stat(dst).st_ino != os.stat(src).st_ino
     assert sorted(p.name for p in dst.parent.iterdir()) == ["dst.bin"]  # no temporary left
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027, 0o077], ids=["022", "027", "077"])
+def test_outputs_get_the_permissions_of_any_new_file_not_private_ones(tmp_path, umask):
+    """Written atomically, a file and a folder get what a plain open() and mkdir() give under the
+    process's umask (0644 and 0755 under 022), not tempfile's private 0600 and 0700."""
+    import os
+    import stat
+
+    from sim2real.fileio import atomic_save_npz, link_or_copy, temp_dir_beside
+
+    old = os.umask(umask)
+    try:
+        (tmp_path / "plain.txt").write_text("x")
+        (tmp_path / "plain").mkdir()
+        atomic_write_text(tmp_path / "out" / "a.txt", "y")
+        atomic_save_npz(tmp_path / "out" / "b.npz", {"x": np.zeros(2)})
+        link_or_copy(tmp_path / "plain.txt", tmp_path / "out" / "c.txt")
+        folder = temp_dir_beside(tmp_path / "out" / "result", "partial-")
+    finally:
+        os.umask(old)
+
+    def mode(p):
+        return stat.S_IMODE(os.stat(p).st_mode)
+
+    assert mode(tmp_path / "plain.txt") == 0o666 & ~umask and mode(tmp_path / "plain") == 0o777 & ~umask
+    for name in ("a.txt", "b.npz", "c.txt"):
+        assert mode(tmp_path / "out" / name) == mode(tmp_path / "plain.txt"), name
+    assert mode(folder) == mode(tmp_path / "plain")
+    assert folder.parent == tmp_path / "out" and folder.name.startswith(".result.partial-") and not any(folder.iterdir())
+    assert sorted(p.name for p in (tmp_path / "out").iterdir() if p != folder) == ["a.txt", "b.npz", "c.txt"]

@@ -10,6 +10,7 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
+from conftest import private_outputs
 from PIL import Image, ImageDraw
 
 from sim2real.cli.main import main
@@ -141,6 +142,7 @@ def test_video_at_5_fps_gives_15_frames_of_3_seconds(tmp_path, capsys):
     times = [f["time"] for f in m["frames"]]
     assert len(times) == 15 and times == pytest.approx([i * 0.2 for i in range(15)], abs=0.021)
     assert all(Path(tmp_path / "real" / f["file"]).is_file() for f in m["frames"])
+    assert private_outputs(tmp_path / "real", tmp_path) == []
     # a time range and --max-frames: 1.0 s .. 2.0 s at 5 fps is 5 frames, capped at 3
     code, io = run_cli(["realset", f"{video}@1-2", "--out", str(tmp_path / "r2"), "--dup-distance", "-1",
                         "--max-frames", "3", "--quiet"], capsys)

@@ -1,4 +1,5 @@
 import numpy as np
+from conftest import private_outputs
 
 from sim2real.scene.procedural import generate_scene
 from sim2real.scene.scene import CLASSES, Scene
@@ -24,6 +25,7 @@ def test_every_class_present_closed_and_plausible(procedural_scene):
 
 def test_scene_save_load_round_trip(tmp_path, procedural_scene):
     procedural_scene.save(tmp_path / "s")
+    assert private_outputs(tmp_path / "s", tmp_path) == []
     back = Scene.load(tmp_path / "s")
     assert back.classes == procedural_scene.classes
     for o1, o2 in zip(back.objects, procedural_scene.objects):

@@ -6,6 +6,7 @@ import shutil
 import numpy as np
 import pytest
 import torch
+from conftest import private_outputs
 from eval_data import SCENE_SEED, tiny_run
 from PIL import Image
 from train_data import scene_dir, views_dir
@@ -73,6 +74,7 @@ def test_translate_trajectory(inputs, tmp_path, capsys):
     assert manifest["batch"] == 3  # as given
     assert not (out / ".gbuffers").exists()  # scratch removed
     assert not list(tmp_path.glob(".out.partial-*"))  # written beside it, then renamed into place
+    assert private_outputs(out, tmp_path) == []  # readable as any new file is, not 0600 / 0700
 
 
 def test_translate_stereo_pair(inputs, tmp_path, capsys):

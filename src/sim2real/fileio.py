@@ -10,8 +10,8 @@ import contextlib
 import io
 import json
 import os
+import secrets
 import shutil
-import tempfile
 import threading
 from pathlib import Path
 from typing import Iterator
@@ -22,18 +22,43 @@ from PIL import Image
 from sim2real.errors import UserError, reason
 
 
+def _new_beside(path: Path, infix: str, suffix: str, folder: bool) -> Path:
+    """Create a new empty file (or folder) of an unused name ``.NAME.INFIX<random>SUFFIX`` beside
+    ``path``, with the permissions the process's umask gives any new file (0644, folders 0755,
+    under the usual 022). :mod:`tempfile` would make them private (0600, 0700), and renamed into
+    place the outputs would stay so: unreadable to the other users of a shared server, and to the
+    host's user when the command ran in a container as another user."""
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{infix}{secrets.token_hex(4)}{suffix}"
+        try:
+            if folder:
+                os.mkdir(tmp, 0o777)  # the kernel applies the umask
+            else:
+                os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:
+            if not path.parent.is_dir():
+                raise
+    raise FileExistsError(f"no unused temporary name beside {path}")
+
+
+def temp_dir_beside(path: str | os.PathLike, infix: str = "") -> Path:
+    """A new empty folder beside ``path`` (its parents made), to fill and then rename to ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return _new_beside(path, infix, "", folder=True)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it is renamed to ``path``."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix + ".tmp", dir=path.parent)
+        tmp = _new_beside(path, "", suffix or path.suffix + ".tmp", folder=False)
     except (FileExistsError, NotADirectoryError):  # a file where a folder of the path should be
         blocker = next((q for q in path.parents if q.exists() and not q.is_dir()), path.parent)
         raise UserError(f"cannot write {path}: {blocker} is a file, not a folder") from None
-    os.close(fd)
-    tmp = Path(tmp)
     try:
         yield tmp
         os.replace(tmp, path)

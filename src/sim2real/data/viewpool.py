@@ -43,7 +43,6 @@ import json
 import os
 import shutil
 import sys
-import tempfile
 from importlib import metadata
 from pathlib import Path
 
@@ -58,7 +57,7 @@ except ImportError:  # Windows: not a target; pools are then built without a loc
 from sim2real import __version__
 from sim2real.config import DataConfig
 from sim2real.errors import UserError, reason
-from sim2real.fileio import atomic_write_json, cache_root, fsync_files, read_json
+from sim2real.fileio import atomic_write_json, cache_root, fsync_files, read_json, temp_dir_beside
 from sim2real.pool import WorkerPool
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.raycast import RayCaster
@@ -260,7 +259,7 @@ def _build(folder: Path, spec: dict, scene_dir: Path, scene: Scene, progress: bo
         raise UserError(f"the view pool of scene '{spec['scene']}' needs {need / 2**30:.2f} GiB but {folder.parent} "
                         f"has {free / 2**30:.2f} GiB free; point SIM2REAL_CACHE elsewhere, lower data.view_pool, "
                         f"or set data.view_pool=0 (fresh views, no disk)")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    tmp = temp_dir_beside(folder)
     try:
         path = tmp / GBUFFERS
         np.lib.format.open_memmap(path, mode="w+", dtype=pool_dtype(fp16), shape=(n, h, w)).flush()

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import shutil
-import tempfile
 from collections import Counter
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -30,6 +29,7 @@ from tqdm import tqdm
 
 from sim2real.data.real_manifest import FORMAT, mask_file, write_manifest
 from sim2real.errors import UserError
+from sim2real.fileio import temp_dir_beside
 from sim2real.footage import content, filters, highlights, labels as labelling
 from sim2real.footage.decode import Source, expected_frames, find_sources, iter_frames
 from sim2real.footage.undistort import Undistorter, read_calibration, stored_intrinsics
@@ -104,7 +104,7 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
     sources = find_sources(srcs)
     splits = assign_splits(sources, s.held_out, s.seed)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_path.name}.", dir=out_path.parent))
+    tmp = temp_dir_beside(out_path)
     try:
         manifest = _build(sources, splits, tmp, s, label_map, label_dir, progress, undistort)
         check_output(out_path)

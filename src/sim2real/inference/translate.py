@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -22,7 +21,7 @@ from tqdm import tqdm
 from sim2real.config import to_dict
 from sim2real.data.views import list_views
 from sim2real.errors import UserError
-from sim2real.fileio import atomic_write_json, deferred_fsync, fsync_files, prepare_output_dir
+from sim2real.fileio import atomic_write_json, deferred_fsync, fsync_files, prepare_output_dir, temp_dir_beside
 from sim2real.inference.export import GroundTruthWriter
 from sim2real.inference.frames import chunked, iter_gbuffers, iter_view_files
 from sim2real.inference.model import TrainedModel, translate_batch
@@ -120,7 +119,7 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
     fps = float(source.fps if fps is None else fps)
     _rate(fps)
     final = prepare_output_dir(out)
-    out = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-", dir=final.parent))
+    out = temp_dir_beside(final, "partial-")
     try:
         with deferred_fsync():
             manifest = _translate_into(model, source, out, batch, fps, workers, progress)

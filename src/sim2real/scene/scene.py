@@ -24,7 +24,6 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,7 +31,7 @@ import numpy as np
 import trimesh
 
 from sim2real.errors import UserError
-from sim2real.fileio import read_json
+from sim2real.fileio import read_json, temp_dir_beside
 from sim2real.scene.classes import (
     BACKGROUND_PALETTE,
     DEFAULT_CLASSES,
@@ -185,7 +184,7 @@ class Scene:
         if directory.exists() and any(directory.iterdir()):
             raise UserError(f"output directory {directory} already holds other data; choose an empty one")
         directory.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+        tmp = temp_dir_beside(directory)
         try:
             (tmp / "meshes").mkdir()
             for o in self.objects:
