@@ -4,7 +4,8 @@ Renders a procedural trajectory (not timed), then times write_frames (PNG), expo
 (seconds per frame, everything of docs/formats.md "Ground-truth export", with the frames linked
 into tum/rgb), write_video (frames/s, libx264 crf 18, each available backend) and the
 translation's BackgroundFrameWriter (PNG frames and video, frames/s) with one PNG thread and with
-its default, alternating, medians of --repeats.
+its default, alternating, medians of --repeats; then reads the export back with
+GroundTruthDataset in this process (samples/s, every field and image + depth only, medians).
 Usage: python benchmarks/bench_export.py [--frames 100] [--height 256] [--width 512] [--repeats 3]
 """
 
@@ -20,6 +21,7 @@ import time
 from pathlib import Path
 
 from sim2real.inference.export import export_ground_truth
+from sim2real.inference.gt_dataset import GroundTruthDataset
 from sim2real.inference.video import BackgroundFrameWriter, pyav_has_libx264, write_frames, write_video
 from sim2real.render.raycast import RayCaster
 from sim2real.render.reference import reference_rendering, to_uint8
@@ -76,6 +78,16 @@ def main() -> None:
                 times[k].append(time.perf_counter() - t)
         for k in writer:
             result[f"background_writer_{k}_frames_per_s"] = round(args.frames / statistics.median(times[k]), 1)
+        readers = {"all_fields": GroundTruthDataset(out), "image_depth": GroundTruthDataset(out, fields=["image", "depth"])}
+        times = {k: [] for k in readers}
+        for _ in range(args.repeats):
+            for k, data in readers.items():
+                t = time.perf_counter()
+                for i in range(len(data)):
+                    data[i]
+                times[k].append(time.perf_counter() - t)
+        for k in readers:
+            result[f"dataset_{k}_samples_per_s"] = round(args.frames / statistics.median(times[k]), 1)
     print(json.dumps(result, indent=2))
 
 

@@ -8,6 +8,7 @@ import pytest
 
 from sim2real.cli.main import main
 from sim2real.engine import checkpoint as ckpt
+from sim2real.inference.gt_dataset import GroundTruthDataset
 from sim2real.inference.video import read_video
 from sim2real.render.raycast import RayCaster
 from sim2real.scene.scene import Scene
@@ -44,6 +45,11 @@ def test_demo_writes_video_ground_truth_and_report(demo):
     caster = RayCaster(Scene.load(out / "scenes" / "sim_0"))
     expected = caster.render(traj.cameras[-1]).depth
     np.testing.assert_allclose(np.load(gt / "depth_npy" / f"{FRAMES - 1:06d}.npy"), expected, atol=1e-3)
+    # the README's dataset line: the video folder read back, the last sample that same depth
+    data = GroundTruthDataset(out / info["video"].rsplit("/", 1)[0], fields=["image", "depth"])
+    last = data[FRAMES - 1]
+    assert len(data) == FRAMES and last["image"].shape == (3, h, w)
+    np.testing.assert_allclose(last["depth"][0].numpy(), expected, atol=1e-3)
 
     metrics = json.loads((out / info["metrics"]).read_text())
     assert metrics["run"]["step"] == steps

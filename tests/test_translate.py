@@ -12,6 +12,7 @@ from PIL import Image
 from train_data import scene_dir, views_dir
 
 from sim2real.cli.main import main
+from sim2real.inference.gt_dataset import GroundTruthDataset
 from sim2real.inference.model import load_run
 from sim2real.inference.video import read_video
 from sim2real.render.raycast import RayCaster
@@ -112,6 +113,13 @@ def test_translate_stereo_pair(inputs, tmp_path, capsys):
         assert 0.5 < (mask[depth > 0] == 255).mean() and not mask[depth == 0].any()
     manifest = json.loads((out / "translate.json").read_text())
     assert manifest["stereo"] == {"baseline_mm": 4.0, "right": "right/", "stereo": "stereo/"}
+    pair = GroundTruthDataset(out, fields=["image", "depth", "right_image", "disparity", "disparity_mask"], stereo=True)
+    s = pair[3]
+    assert torch.equal(s["right_image"], torch.tensor(png(out / "right" / "frames" / "000003.png")).permute(2, 0, 1) / 255)
+    assert torch.equal(s["image"], torch.tensor(png(out / "frames" / "000003.png")).permute(2, 0, 1) / 255)
+    surface = s["depth"] > 0
+    assert pair.baseline_mm == 4.0 and (s["disparity"][~surface] == 0).all() and not s["disparity_mask"][~surface[0]].any()
+    assert torch.allclose(s["disparity"][surface], float(cams[3].K[0, 0]) * 4.0 / s["depth"][surface], rtol=1e-5)
 
     code, err = cli(capsys, "translate", inputs["run"], "--views", out, "--stereo", 4, "--out", tmp_path / "x")
     assert code == 2 and one_line(err) == ("sim2real: error: --stereo needs --scene SCENE --trajectory FILE: "

@@ -1,0 +1,123 @@
+"""GroundTruthDataset reads an export back as tensors, checked against geometry worked out here: a
+camera looking straight down at a floor (z = 0) with a box on it (top at z = 30), stepping 6 mm
+along the world x axis per frame, so that the floor's depth is the camera's height and its flow
+the pinhole formula's -fx * step / depth in every frame."""
+
+import pickle
+
+import numpy as np
+import pytest
+import torch
+from conftest import BOX_HI
+from PIL import Image
+
+from sim2real.errors import UserError
+from sim2real.inference.export import export_ground_truth
+from sim2real.inference.gt_dataset import FIELDS, GroundTruthDataset
+from sim2real.render.raycast import RayCaster
+from sim2real.render.reference import reference_rendering, to_uint8
+from sim2real.scene.camera import Camera, intrinsics_from_fov, look_at
+
+H, W, T, HEIGHT, STEP = 48, 64, 4, 95.0, 6.0
+
+
+@pytest.fixture(scope="module")
+def exported(hiding_scene, tmp_path_factory):
+    caster = RayCaster(hiding_scene)
+    K = intrinsics_from_fov(W, H, 60)
+    cams = [Camera(K, look_at([-9.0 + STEP * i, 0.0, HEIGHT], [-9.0 + STEP * i, 0.0, 0.0], [0, 1, 0]), H, W)
+            for i in range(T)]
+    gbuffers = [caster.render(c) for c in cams]
+    out = tmp_path_factory.mktemp("video")
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, (T, H, W, 3), dtype=np.uint8)
+    (out / "frames").mkdir()
+    (out / "ground_truth").mkdir()  # the frames are named relative to it
+    for i, f in enumerate(frames):
+        Image.fromarray(f).save(out / "frames" / f"{i:06d}.png")
+    export_ground_truth(gbuffers, out / "ground_truth", fps=5.0, rgb_frames_rel=[f"../frames/{i:06d}.png" for i in range(T)])
+    return out, cams, gbuffers, frames
+
+
+def test_samples_hold_the_frames_and_the_geometry(exported):
+    out, cams, gbuffers, frames = exported
+    data = GroundTruthDataset(out)
+    assert len(data) == T and data.size == (H, W) and data.fps == 5.0
+    assert data.class_names == {0: "liver", 4: "gallbladder"}
+    fx = cams[0].K[0, 0]
+    step_cam = cams[0].world_to_camera[:3, :3] @ np.array([STEP, 0.0, 0.0])  # the camera's step in its own axes
+    assert abs(abs(step_cam[0]) - STEP) < 1e-9 and abs(step_cam[1]) < 1e-9  # straight down: x along x
+    for i in range(T):
+        s = data[i]
+        assert list(s) == list(FIELDS)
+        assert s["image"].shape == (3, H, W) and s["image"].dtype == torch.float32
+        assert torch.equal(s["image"], torch.from_numpy(frames[i]).permute(2, 0, 1).float() / 255)
+        floor, box = s["labels"] == 0, s["labels"] == 4
+        assert s["labels"].dtype == torch.int64 and (floor | box).all() and box.sum() > 20 and floor.sum() > 1000
+        assert s["depth"].shape == (1, H, W) and s["depth"].dtype == torch.float32
+        depth = s["depth"][0]
+        assert torch.allclose(depth[floor], torch.tensor(HEIGHT), atol=1e-3)
+        top = box & ((depth - (HEIGHT - BOX_HI[2])).abs() < 1e-3)  # the box's top; its sides lie deeper
+        assert top.sum() > 20 and (depth[box] > HEIGHT - BOX_HI[2] - 1e-3).all() and (depth[box] < HEIGHT).all()
+        assert torch.allclose(s["K"], torch.tensor(cams[i].K, dtype=torch.float32))
+        assert torch.allclose(s["camera_to_world"], torch.tensor(np.linalg.inv(cams[i].world_to_camera),
+                                                                 dtype=torch.float32), atol=1e-4)
+        assert s["index"].item() == i
+        if i + 1 < T:  # a fixed point's x in the camera falls by the step; u by fx * step / depth
+            u, v, mask = s["flow"][0], s["flow"][1], s["flow_mask"]
+            assert s["flow"].shape == (2, H, W) and mask.dtype == torch.bool
+            on_floor = mask & floor
+            shift = -fx * step_cam[0] / HEIGHT  # about 3.5 px
+            leaving = mask[:, :3] if shift < 0 else mask[:, -3:]  # the columns whose points leave the view
+            assert on_floor.sum() > 1000 and not leaving.any()
+            assert torch.allclose(u[on_floor], torch.tensor(shift, dtype=torch.float32), atol=1e-3)
+            assert torch.allclose(v[mask], torch.tensor(0.0), atol=1e-3)
+            top &= mask
+            assert top.sum() > 10
+            assert torch.allclose(u[top], torch.tensor(-fx * step_cam[0] / (HEIGHT - BOX_HI[2]), dtype=torch.float32), atol=1e-3)
+        else:
+            assert not s["flow"].any() and not s["flow_mask"].any()
+    assert torch.equal(data[-1]["index"], torch.tensor(T - 1))
+    with pytest.raises(IndexError):
+        data[T]
+
+
+def test_loader_batches_pickles_and_reads_only_the_fields_asked(exported):
+    out = exported[0]
+    data = GroundTruthDataset(out / "ground_truth", fields=["depth", "labels"])  # the folder itself
+    batch = next(iter(torch.utils.data.DataLoader(data, batch_size=3)))
+    assert set(batch) == {"depth", "labels"} and batch["depth"].shape == (3, 1, H, W) and batch["labels"].shape == (3, H, W)
+    again = pickle.loads(pickle.dumps(data))
+    assert torch.equal(again[2]["depth"], data[2]["depth"])
+    (out / "broken").mkdir()
+    (out / "broken" / "ground_truth.json").write_text((out / "ground_truth" / "ground_truth.json").read_text())
+    for name in ("intrinsics.json", "poses_tum_mm.txt"):
+        (out / "broken" / name).write_bytes((out / "ground_truth" / name).read_bytes())
+    (out / "broken" / "depth_npy").mkdir()
+    (out / "broken" / "depth_npy" / "000001.npy").write_bytes((out / "ground_truth" / "depth_npy" / "000001.npy").read_bytes())
+    only = GroundTruthDataset(out / "broken", fields=["depth"])[1]  # no frames, labels or flow there
+    assert torch.equal(only["depth"], data[1]["depth"])
+
+
+def test_without_frames_the_image_is_the_reference_rendering(exported, tmp_path):
+    gbuffers = exported[2]
+    export_ground_truth(gbuffers[:2], tmp_path / "gt")
+    s = GroundTruthDataset(tmp_path / "gt", fields=["image"])[1]
+    want = to_uint8(reference_rendering(gbuffers[1]))
+    assert torch.equal(s["image"], torch.from_numpy(want).permute(2, 0, 1).float() / 255)
+
+
+def test_bad_input_is_one_line(exported, tmp_path):
+    out = exported[0]
+    cases = [
+        (lambda: GroundTruthDataset(tmp_path), f"{tmp_path} is neither a translate output nor a ground-truth export"),
+        (lambda: GroundTruthDataset(out, fields=["depth", "normals"]), "unknown field 'normals'; choose from image,"),
+        (lambda: GroundTruthDataset(out, stereo=True), f"{out} holds no stereo pair (no stereo/stereo.json)"),
+    ]
+    for make, start in cases:
+        with pytest.raises(UserError) as e:
+            make()
+        assert str(e.value).startswith(start) and "\n" not in str(e.value), str(e.value)
+    (tmp_path / "ground_truth.json").write_text('{"format": "something-else/1"}')
+    with pytest.raises(UserError, match="is not a sim2real ground-truth manifest"):
+        GroundTruthDataset(tmp_path)
