@@ -236,3 +236,41 @@ def test_counts_are_written_with_their_noun_in_the_right_number():
     from sim2real.cli.args import counted
 
     assert [counted(n, "frame") for n in (0, 1, 2)] == ["0 frames", "1 frame", "2 frames"]
+
+
+def test_machine_failures_are_named_with_what_to_do():
+    """A full disk, a quota, a read-only or forbidden place is the machine's failure: found in the
+    exception or those it was raised from (torch.save wraps the OSError in a RuntimeError);
+    anything else is not one."""
+    import errno
+    import os
+
+    from sim2real.errors import machine_error
+
+    full = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    assert machine_error(full) == "No space left on device: free space on that disk or write elsewhere"
+    denied = PermissionError(errno.EACCES, os.strerror(errno.EACCES), "/data/run")
+    assert machine_error(denied) == "Permission denied (/data/run): check its permissions"
+    try:
+        try:
+            raise full
+        except OSError:
+            raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 57761792 vs 57761684")
+    except RuntimeError as wrapped:
+        assert machine_error(wrapped) == machine_error(full)
+    assert machine_error(RuntimeError("a bug")) is None
+    assert machine_error(FileNotFoundError(errno.ENOENT, "No such file or directory", "x")) is None
+
+
+def test_a_full_disk_is_one_line_and_leaves_nothing_behind(capsys, tmp_path, monkeypatch):
+    import errno
+    import os
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "replace", full)  # the rename of the finished scene folder fails
+    code, err = run(capsys, "scene", "generate", "--seed", "0", "--out", str(tmp_path / "scene"))
+    assert code == 1 and err == "sim2real: error: No space left on device: free space on that disk or write elsewhere"
+    assert [p.name for p in tmp_path.iterdir() if p.name != "scene"] == []  # no temporary folder left
+    assert not (tmp_path / "scene").exists() or not any((tmp_path / "scene").iterdir())

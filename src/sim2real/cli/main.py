@@ -9,7 +9,7 @@ import os
 import re
 import sys
 
-from sim2real.errors import UserError
+from sim2real.errors import UserError, machine_error
 
 COMMANDS = ("scene", "blend", "render", "realdomain", "realset", "train", "translate", "evaluate", "demo", "benchmark",
             "doctor")
@@ -56,6 +56,10 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # an unexpected failure still gets one line; SIM2REAL_DEBUG=1 shows it all
         if os.environ.get("SIM2REAL_DEBUG"):
             raise
+        machine = machine_error(e)
+        if machine is not None:  # a full disk or a forbidden place: said as such, not as a bug
+            print(f"sim2real: error: {machine}", file=sys.stderr)
+            return 1
         print(f"sim2real: internal error: {type(e).__name__}: {e} (set SIM2REAL_DEBUG=1 for the traceback)", file=sys.stderr)
         return 1
 
