@@ -100,3 +100,79 @@ def test_blend_without_meshes_is_refused(tmp_path, capsys):
     lines = [line for line in io.err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1 and "holds no mesh objects" in lines[0]
     assert not (tmp_path / "s").exists()
+
+
+_CAMERA = r"""
+import json
+import sys
+import bpy
+
+out, corners, spec = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
+bpy.ops.wm.read_factory_settings(use_empty=True)
+scene = bpy.context.scene
+lens = bpy.data.cameras.new("Lens")
+lens.lens, lens.sensor_width, lens.sensor_fit, lens.shift_x, lens.shift_y = 35.0, 36.0, "AUTO", 0.1, -0.05
+cam = bpy.data.objects.new("Endoscope", lens)
+scene.collection.objects.link(cam)
+scene.camera = cam
+scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 640, 320, 100
+scene.render.fps, scene.render.fps_base = 25, 1.0
+scene.frame_start, scene.frame_end = 1, len(spec)
+cam.rotation_mode = "QUATERNION"
+for f, (loc, wxyz) in enumerate(spec, start=1):
+    cam.location, cam.rotation_quaternion = loc, wxyz
+    cam.keyframe_insert("location", frame=f)
+    cam.keyframe_insert("rotation_quaternion", frame=f)
+with open(corners, "w") as fh:  # the image's corners as Blender frames them, in the camera's axes
+    json.dump([list(v) for v in lens.view_frame(scene=scene)], fh)
+bpy.ops.wm.save_as_mainfile(filepath=out)
+"""
+
+
+@needs_bpy
+def test_a_blender_cameras_animation_and_lens_become_the_trajectory(procedural_scene, tmp_path, capsys):
+    """A camera keyed at every frame along a generated path (metres, Blender's camera axes) comes
+    back as that path; its lens, sensor and shifts give the K that maps the corners of Blender's
+    own view frame (``Camera.view_frame``) onto the image's corners."""
+    from sim2real.render.raycast import RayCaster
+    from sim2real.scene.camera import rotation_to_quaternion
+    from sim2real.scene.trajectory import Trajectory, make_trajectory
+
+    made = make_trajectory(RayCaster(procedural_scene), frames=8, height=64, width=128, seed=1)
+    spec = []
+    for c in made.cameras:
+        gl = c.camera_to_world @ np.diag([1.0, -1.0, -1.0, 1.0])
+        x, y, z, w = rotation_to_quaternion(gl[:3, :3])
+        spec.append([(gl[:3, 3] / 1000).tolist(), [w, x, y, z]])
+    r = blend.run_script(_CAMERA, tmp_path / "cam.blend", tmp_path / "corners.json", json.dumps(spec))
+    assert r.returncode == 0, r.stderr[-2000:]
+    procedural_scene.save(tmp_path / "scene")
+
+    out = tmp_path / "own.txt"
+    code, io = cli(capsys, "scene", "trajectory", tmp_path / "scene", "--poses", tmp_path / "cam.blend", "--units", "m",
+                   "--height", 64, "--width", 128, "--out", out)
+    assert code == 0 and io.err == "", io.err
+    back = Trajectory.load(out)
+    assert back.fps == 25 and len(back.cameras) == 8
+    for a, b in zip(back.cameras, made.cameras):
+        assert np.allclose(a.camera_to_world, b.camera_to_world, atol=1e-4)  # float32 in Blender
+    K = back.cameras[0].K
+    # by hand: AUTO fits the 36 mm sensor to the 640 px width, f = 640 * 35 / 36 px; the shifts move
+    # the centre by 0.1 and -0.05 of 640 px, to the left and down; then 640x320 -> 128x64
+    assert np.allclose(K, [[640 * 35 / 36 * 0.2, 0, (320 - 64) * 0.2], [0, 640 * 35 / 36 * 0.2, (160 - 32) * 0.2],
+                           [0, 0, 1]])
+    corners = np.array(json.loads((tmp_path / "corners.json").read_text()))  # x right, y up, looking along -z
+    cv = corners * [1, -1, -1]
+    uv = (cv @ K.T)[:, :2] / cv[:, 2:3]
+    assert np.allclose(sorted(map(tuple, uv)), [(0, 0), (0, 64), (128, 0), (128, 64)], atol=1e-4)  # float32
+
+    code, io = cli(capsys, "scene", "trajectory", tmp_path / "scene", "--poses", tmp_path / "cam.blend", "--units", "m",
+                   "--height", 64, "--width", 96, "--out", tmp_path / "narrow.txt")
+    assert code == 0 and io.err.strip() == ("sim2real: note: the Blender camera renders 640x320: at 96x64 its pixels are "
+                                            "not square (fx/fy 0.750); give --width and --height of its aspect for "
+                                            "square ones")
+    for extra, message in ((["--camera", "Missing"], f"{tmp_path / 'cam.blend'} holds no camera object 'Missing'"),
+                           (["--axes", "opengl"], "a .blend file's camera has Blender's axes: drop --axes")):
+        code, io = cli(capsys, "scene", "trajectory", tmp_path / "scene", "--poses", tmp_path / "cam.blend",
+                       "--units", "m", *extra, "--out", tmp_path / "x.txt")
+        assert code == 2 and io.err.strip() == f"sim2real: error: {message}"

@@ -5,7 +5,8 @@
 environment (``sim2real blend setup``, about 1 GB; 134 s to install on the shared 2-core dev
 machine) and runs as a subprocess: it opens the ``.blend`` file and exports every mesh object
 as glTF binary (GLB) with object names, modifiers applied, world transforms and Blender's
-Z-up kept (``export_yup=False``). The GLB is then read like any other mesh file.
+Z-up kept (``export_yup=False``). The GLB is then read like any other mesh file. A camera's
+animated path is read the same way (:func:`blend_camera_path`).
 
 The environment is ``$SIM2REAL_BLEND_VENV``, default ``~/.cache/sim2real/blend-venv``.
 """
@@ -41,6 +42,39 @@ if not meshes:
     sys.exit(3)
 bpy.ops.export_scene.gltf(filepath=glb, export_format="GLB", export_yup=False, export_apply=True,
                           use_selection=False, export_materials="NONE", export_animations=False)
+"""
+
+_CAMERA = r"""
+import sys
+import bpy
+
+blend, out, name = sys.argv[1], sys.argv[2], sys.argv[3]
+try:
+    bpy.ops.wm.open_mainfile(filepath=blend)
+except RuntimeError as e:
+    print(f"cannot open {blend}: {str(e).strip().splitlines()[-1]}", file=sys.stderr)
+    sys.exit(3)
+scene = bpy.context.scene
+cam = bpy.data.objects.get(name) if name else scene.camera
+if cam is None or cam.type != "CAMERA":
+    print(f"{blend} holds no camera object '{name}'" if name else f"{blend} has no scene camera: name one with --camera",
+          file=sys.stderr)
+    sys.exit(3)
+c, r = cam.data, scene.render
+if c.type != "PERSP":
+    print(f"camera '{cam.name}' of {blend} is {c.type.lower()}, not a perspective camera", file=sys.stderr)
+    sys.exit(3)
+fps = r.fps / r.fps_base
+scale = r.resolution_percentage / 100.0
+lines = [f"# blender-camera lens_mm {c.lens!r} sensor_width_mm {c.sensor_width!r} sensor_height_mm {c.sensor_height!r} "
+         f"sensor_fit {c.sensor_fit} shift_x {c.shift_x!r} shift_y {c.shift_y!r} width {round(r.resolution_x * scale)} "
+         f"height {round(r.resolution_y * scale)} pixel_aspect {r.pixel_aspect_x / r.pixel_aspect_y!r} name {cam.name}"]
+for f in range(scene.frame_start, scene.frame_end + 1, scene.frame_step):
+    scene.frame_set(f)
+    loc, rot, _ = cam.matrix_world.decompose()
+    lines.append(" ".join(f"{x!r}" for x in ((f - scene.frame_start) / fps, *loc, rot.x, rot.y, rot.z, rot.w)))
+with open(out, "w") as fh:
+    fh.write("\n".join(lines) + "\n")
 """
 
 
@@ -91,17 +125,28 @@ def setup() -> Path:
     return target
 
 
-def blend_to_glb(blend: str | os.PathLike, glb: str | os.PathLike) -> None:
-    """Export the mesh objects of ``blend`` to ``glb`` with bpy in its own environment."""
-    exe = venv_python()
-    if exe is None:
-        raise UserError(SETUP_HINT)
-    r = subprocess.run([str(exe), "-c", _EXPORT, str(blend), str(glb)], capture_output=True, text=True)
+def _run_into(script: str, blend, out, *args: str, failure: str) -> None:
+    """Run a bpy ``script`` on ``blend`` that writes ``out``; its exit status 3 is a refusal with
+    its last stderr line as the message, any other failure ``failure: <last line>``."""
+    r = run_script(script, str(blend), str(out), *args)
     if r.returncode == 3:
         raise UserError(r.stderr.strip().splitlines()[-1])
-    if r.returncode != 0 or not Path(glb).is_file():
+    if r.returncode != 0 or not Path(out).is_file():
         tail = (r.stderr.strip().splitlines() or ["no output"])[-1]
-        raise UserError(f"Blender could not export {blend}: {tail}")
+        raise UserError(f"{failure}: {tail}")
+
+
+def blend_to_glb(blend: str | os.PathLike, glb: str | os.PathLike) -> None:
+    """Export the mesh objects of ``blend`` to ``glb`` with bpy in its own environment."""
+    _run_into(_EXPORT, blend, glb, failure=f"Blender could not export {blend}")
+
+
+def blend_camera_path(blend: str | os.PathLike, out: str | os.PathLike, camera: str | None = None) -> None:
+    """Write the path of ``blend``'s scene camera (or the camera object ``camera``) over the
+    scene's frame range to ``out`` as TUM rows (camera to world in Blender's units and camera
+    axes, seconds at the scene's frame rate), after one comment line with the camera's lens,
+    sensor, shift and render size (:func:`sim2real.scene.pose_import.blender_intrinsics`)."""
+    _run_into(_CAMERA, blend, out, camera or "", failure=f"Blender could not read the camera of {blend}")
 
 
 def run_script(script: str, *args: str) -> subprocess.CompletedProcess:

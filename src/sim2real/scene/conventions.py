@@ -14,3 +14,6 @@ DEFAULT_MAX_DEG_PER_FRAME = 0.4
 """Bound on the camera's rotation between consecutive frames (degrees)."""
 LOOKS = ("smooth", "swing")
 """How a generated test path looks at the scene: a smooth look-at, or swings between liver points."""
+CAMERA_AXES = ("opencv", "opengl")
+"""Camera axes a pose file may use (:data:`sim2real.scene.pose_import.AXES`): OpenCV's (x right,
+y down, looking along +z: TUM's, COLMAP's, sim2real's) or OpenGL's (y up, looking along -z: Blender's)."""
