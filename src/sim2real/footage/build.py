@@ -103,7 +103,6 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
     undistort = Undistorter(read_calibration(s.calibration)) if s.calibration else None
     sources = find_sources(srcs)
     splits = assign_splits(sources, s.held_out, s.seed)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temp_dir_beside(out_path)
     try:
         manifest = _build(sources, splits, tmp, s, label_map, label_dir, progress, undistort)

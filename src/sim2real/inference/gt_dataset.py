@@ -69,9 +69,10 @@ def _read_image(path: Path, mode: str) -> np.ndarray:
         raise UserError(f"cannot read image {path}: {reason(e)}") from None
 
 
-def _read_npy(path: Path) -> np.ndarray:
+def _map_tensor(path: Path) -> torch.Tensor:
+    """A float32 (H, W) ``.npy`` map as a (1, H, W) tensor."""
     try:
-        return np.load(path)
+        return torch.from_numpy(np.load(path).astype(np.float32))[None]
     except (OSError, ValueError) as e:
         raise UserError(f"cannot read array {path}: {reason(e)}") from None
 
@@ -129,7 +130,7 @@ class GroundTruthDataset(torch.utils.data.Dataset):
         h, w = self.size
         read = {
             "image": lambda: _image_tensor(self._rgb[i]),
-            "depth": lambda: torch.from_numpy(_read_npy(self.root / "depth_npy" / f"{name}.npy").astype(np.float32))[None],
+            "depth": lambda: _map_tensor(self.root / "depth_npy" / f"{name}.npy"),
             "labels": lambda: torch.from_numpy(_read_image(self.root / "labels" / f"{name}.png", "L").astype(np.int64)),
             "flow": lambda: (torch.from_numpy(read_flo(self.root / "flow" / f"{name}.flo")).permute(2, 0, 1).contiguous()
                              if i + 1 < self.frames else torch.zeros(2, h, w)),
@@ -143,7 +144,7 @@ class GroundTruthDataset(torch.utils.data.Dataset):
             top = self._stereo
             read.update({
                 "right_image": lambda: _image_tensor(top / "right" / "frames" / f"{name}.png"),
-                "disparity": lambda: torch.from_numpy(_read_npy(top / "stereo" / "disparity" / f"{name}.npy").astype(np.float32))[None],
+                "disparity": lambda: _map_tensor(top / "stereo" / "disparity" / f"{name}.npy"),
                 "disparity_mask": lambda: _mask(top / "stereo" / "disparity_mask" / f"{name}.png"),
             })
         return {f: read[f]() for f in self.fields}

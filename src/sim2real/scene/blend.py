@@ -68,7 +68,7 @@ fps = r.fps / r.fps_base
 scale = r.resolution_percentage / 100.0
 lines = [f"# blender-camera lens_mm {c.lens!r} sensor_width_mm {c.sensor_width!r} sensor_height_mm {c.sensor_height!r} "
          f"sensor_fit {c.sensor_fit} shift_x {c.shift_x!r} shift_y {c.shift_y!r} width {round(r.resolution_x * scale)} "
-         f"height {round(r.resolution_y * scale)} pixel_aspect {r.pixel_aspect_x / r.pixel_aspect_y!r} name {cam.name}"]
+         f"height {round(r.resolution_y * scale)} pixel_aspect {r.pixel_aspect_x / r.pixel_aspect_y!r}"]
 for f in range(scene.frame_start, scene.frame_end + 1, scene.frame_step):
     scene.frame_set(f)
     loc, rot, _ = cam.matrix_world.decompose()

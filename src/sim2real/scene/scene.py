@@ -183,7 +183,6 @@ class Scene:
         directory = Path(directory)
         if directory.exists() and any(directory.iterdir()):
             raise UserError(f"output directory {directory} already holds other data; choose an empty one")
-        directory.parent.mkdir(parents=True, exist_ok=True)
         tmp = temp_dir_beside(directory)
         try:
             (tmp / "meshes").mkdir()
