@@ -47,7 +47,9 @@ from PIL import Image
 
 from sim2real.errors import UserError, reason
 from sim2real.fileio import read_json
+from sim2real.footage.decode import read_image
 from sim2real.inference.gt_formats import read_flo, read_tum_poses
+from sim2real.inference.realimages import load_label
 
 FIELDS = ("image", "depth", "labels", "flow", "flow_mask", "K", "camera_to_world", "index")
 STEREO_FIELDS = ("right_image", "disparity", "disparity_mask")
@@ -59,14 +61,6 @@ def _ground_truth_folder(root: Path) -> Path:
             return folder
     raise UserError(f"{root} is neither a translate output nor a ground-truth export (no ground_truth.json "
                     "in it or in its ground_truth/)")
-
-
-def _read_image(path: Path, mode: str) -> np.ndarray:
-    try:
-        with Image.open(path) as im:
-            return np.array(im.convert(mode))
-    except (OSError, ValueError) as e:
-        raise UserError(f"cannot read image {path}: {reason(e)}") from None
 
 
 def _map_tensor(path: Path) -> torch.Tensor:
@@ -131,7 +125,7 @@ class GroundTruthDataset(torch.utils.data.Dataset):
         read = {
             "image": lambda: _image_tensor(self._rgb[i]),
             "depth": lambda: _map_tensor(self.root / "depth_npy" / f"{name}.npy"),
-            "labels": lambda: torch.from_numpy(_read_image(self.root / "labels" / f"{name}.png", "L").astype(np.int64)),
+            "labels": lambda: torch.from_numpy(load_label(self.root / "labels" / f"{name}.png").astype(np.int64)),
             "flow": lambda: (torch.from_numpy(read_flo(self.root / "flow" / f"{name}.flo")).permute(2, 0, 1).contiguous()
                              if i + 1 < self.frames else torch.zeros(2, h, w)),
             "flow_mask": lambda: (_mask(self.root / "flow_mask" / f"{name}.png") if i + 1 < self.frames
@@ -151,8 +145,13 @@ class GroundTruthDataset(torch.utils.data.Dataset):
 
 
 def _image_tensor(path: Path) -> torch.Tensor:
-    return torch.from_numpy(_read_image(path, "RGB")).permute(2, 0, 1).float().div_(255.0)
+    return torch.tensor(read_image(path)).permute(2, 0, 1).float().div_(255.0)
 
 
 def _mask(path: Path) -> torch.Tensor:
-    return torch.from_numpy(_read_image(path, "L") > 127)
+    """A 0/255 mask PNG as a bool tensor."""
+    try:
+        with Image.open(path) as im:
+            return torch.from_numpy(np.array(im.convert("L")) > 127)
+    except (OSError, ValueError) as e:
+        raise UserError(f"cannot read mask {path}: {reason(e)}") from None
