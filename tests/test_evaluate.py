@@ -123,6 +123,27 @@ def test_evaluate_without_weights_or_labels(base, tmp_path, capsys, monkeypatch)
     assert "FID and KID are not reported" in md
 
 
+def test_an_interrupted_evaluation_leaves_no_output_folder(base, tmp_path, capsys, monkeypatch):
+    """Ctrl-C while the report is written, after the videos: no --out folder (a rerun into the
+    same name is accepted) and nothing hidden beside it."""
+    from sim2real.inference import evaluate
+
+    written = []
+
+    def interrupt(metrics, out, *args):
+        written.extend(sorted(p.name for p in (out / "videos").iterdir()))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(evaluate, "report_stage", interrupt)
+    argv = ["evaluate", base / "eval_tiny_run", "--scenes", scene_dir(base, SCENE_SEED), "--real", real_dir(base),
+            "--out", tmp_path / "eval", "--views", 4, "--frames", 4, "--seg-iterations", 1, "--seg-size", "32x64",
+            "--device", "cpu", "--no-progress"]
+    assert main([str(a) for a in argv]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "sim2real: interrupted"
+    assert f"procedural_{SCENE_SEED:04d}.mp4" in written
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_bad_inputs_one_line(base, tmp_path, capsys):
     argv = ["evaluate", base / "eval_tiny_run", "--scenes", scene_dir(base, SCENE_SEED), "--real", real_dir(base),
             "--out", tmp_path / "o", "--trajectory", "a.txt", "b.txt"]

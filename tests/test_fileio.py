@@ -163,3 +163,52 @@ def test_outputs_get_the_permissions_of_any_new_file_not_private_ones(tmp_path, 
     assert mode(folder) == mode(tmp_path / "plain")
     assert folder.parent == tmp_path / "out" and folder.name.startswith(".result.partial-") and not any(folder.iterdir())
     assert sorted(p.name for p in (tmp_path / "out").iterdir() if p != folder) == ["a.txt", "b.npz", "c.txt"]
+
+
+def test_a_staged_output_folder_appears_whole_or_not_at_all(tmp_path):
+    """What the block writes appears under the name at its end; a block that raises leaves the
+    name as it found it (absent, or the empty folder the user made) and nothing hidden beside it."""
+    from sim2real.fileio import staged_output_dir
+
+    def names(folder):
+        return sorted(p.name for p in folder.iterdir())
+
+    out = tmp_path / "new" / "out"
+    with staged_output_dir(out) as staged:
+        assert not out.exists() and staged.parent == out.parent  # beside it, renamed at the end
+        (staged / "sub").mkdir()
+        (staged / "sub" / "a.txt").write_text("a")
+    assert (out / "sub" / "a.txt").read_text() == "a" and names(out.parent) == ["out"]
+
+    for existed in (False, True):
+        out = tmp_path / f"failed{existed}"
+        if existed:
+            out.mkdir()
+        with pytest.raises(KeyboardInterrupt):
+            with staged_output_dir(out) as staged:
+                (staged / "half.txt").write_text("h")
+                raise KeyboardInterrupt
+        assert out.exists() == existed and (not existed or names(out) == [])
+        assert not [p for p in tmp_path.iterdir() if p.name.startswith(f".failed{existed}")]
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with staged_output_dir(empty) as staged:  # an empty folder is taken
+        (staged / "b.txt").write_text("b")
+    assert names(empty) == ["b.txt"]
+
+    body = []
+    with pytest.raises(UserError) as e:
+        with staged_output_dir(empty):
+            body.append(1)
+    assert _one_line(e).startswith(f"output directory {empty} already holds other data (b.txt, ...)") and not body
+
+    raced = tmp_path / "raced"
+    with pytest.raises(UserError) as e:
+        with staged_output_dir(raced) as staged:
+            (staged / "mine.txt").write_text("m")
+            raced.mkdir()
+            (raced / "theirs.txt").write_text("t")  # another program wrote there meanwhile
+    assert _one_line(e) == (f"output directory {raced} was filled by something else while this command ran; "
+                            f"choose an empty one")
+    assert names(raced) == ["theirs.txt"] and not list(tmp_path.glob(".raced*"))

@@ -260,7 +260,7 @@ def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, what):
                 "truncated_mkv": "is truncated", "zero_frames": "no decodable frames",
                 "not_media": "neither a video", "no_frames": "holds no frames", "broken_frame": "cannot read frame",
                 "label_size": "is 60x200 but its frame is 120x200", "unknown_class": "unknown class 'tumour'",
-                "existing_out": "already exists", "colour_labels_id_map": "key it by colour",
+                "existing_out": "already holds other data", "colour_labels_id_map": "key it by colour",
                 "bad_map_key": "'red' is neither a class id", "class_table_alone": "--class-table names the classes"}[what]
     before = sorted(p.name for p in tmp_path.iterdir())
     code, io = run_cli(["realset", *args, "--out", str(tmp_path / "real"), "--quiet"], capsys)

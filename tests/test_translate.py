@@ -203,6 +203,28 @@ def test_output_dir_with_other_data(inputs, tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
 
 
+def test_a_failed_translation_leaves_no_output_folder(inputs, tmp_path, capsys, monkeypatch):
+    """The disk fills while the ground truth is closed (after the frames): one line, exit 1, no
+    --out folder (not even an empty one) and nothing hidden beside it; an --out folder the user
+    made beforehand stays, empty."""
+    import errno
+    import os
+
+    from sim2real.inference import export
+
+    def full(self):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(export.GroundTruthWriter, "close", full)
+    made = tmp_path / "made"
+    made.mkdir()
+    for out in (tmp_path / "out", made):
+        code, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
+                        "--out", out, "--device", "cpu", "--no-progress")
+        assert code == 1 and one_line(err).endswith("No space left on device: free space on that disk or write elsewhere")
+    assert [p.name for p in tmp_path.iterdir()] == ["made"] and list(made.iterdir()) == []
+
+
 def test_mixed_precision_path_on_cpu(inputs, monkeypatch):
     """The CUDA path (bf16 autocast, channels-last), run on the CPU: frames within bf16 rounding
     of the fp32 ones, and still independent of what shares their batch."""

@@ -1,5 +1,6 @@
-"""Atomic file writing: write to a temporary name in the same folder, then rename; and reading
-a JSON file with one clear error line.
+"""Atomic file writing: write to a temporary name in the same folder, then rename (files, and
+whole output folders: :func:`staged_output_dir`); and reading a JSON file with one clear error
+line.
 
 A reader never sees a half-written file under the final name, even after kill -9.
 """
@@ -7,6 +8,7 @@ A reader never sees a half-written file under the final name, even after kill -9
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import json
 import os
@@ -156,12 +158,10 @@ def atomic_write_image(path: str | os.PathLike, image: np.ndarray) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def prepare_output_dir(path: str | os.PathLike, allowed: tuple[str, ...] = ()) -> Path:
-    """Create ``path`` or accept it when empty (or holding only ``allowed`` names).
-
-    An output directory that already holds other data is refused, so that no run
-    silently mixes its files with an earlier one.
-    """
+def check_output_dir(path: str | os.PathLike, allowed: tuple[str, ...] = ()) -> Path:
+    """``path`` as a Path, if it does not exist or is an empty folder (or one holding only
+    ``allowed`` names); otherwise a one-line :class:`UserError`, so that no command silently
+    mixes its files with an earlier one's."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise UserError(f"output path {path} exists and is not a directory")
@@ -169,8 +169,45 @@ def prepare_output_dir(path: str | os.PathLike, allowed: tuple[str, ...] = ()) -
         other = sorted(p.name for p in path.iterdir() if p.name not in allowed)
         if other:
             raise UserError(f"output directory {path} already holds other data ({other[0]}, ...); choose an empty one")
+    return path
+
+
+def prepare_output_dir(path: str | os.PathLike, allowed: tuple[str, ...] = ()) -> Path:
+    """Create ``path`` or accept it when empty (or holding only ``allowed`` names), to write into
+    in place: for a folder that is filled over time and continued (a training run). An output
+    made at once is written with :func:`staged_output_dir` instead."""
+    path = check_output_dir(path, allowed)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+@contextlib.contextmanager
+def staged_output_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """A new output folder that appears complete or not at all.
+
+    ``path`` must not exist or be an empty folder (:func:`check_output_dir`, checked before the
+    block). The block fills the empty hidden sibling folder this yields
+    (``.NAME.partial-<random>``). When the block ends, every file in it is flushed to disk and
+    the sibling is renamed to ``path``. When the block raises (an error, Ctrl-C, a full disk), the
+    sibling is removed and ``path`` is left as it was, so neither a reader nor a rerun finds a
+    half-written output, nor an empty folder the failed command made; only a kill -9 leaves the
+    hidden sibling behind."""
+    final = check_output_dir(path)
+    tmp = temp_dir_beside(final, "partial-")
+    try:
+        yield tmp
+        fsync_files([p for p in tmp.rglob("*") if p.is_file() and not p.is_symlink()])
+        try:
+            os.replace(tmp, final)  # onto the empty folder, or a new name
+        except OSError as e:
+            if e.errno in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+                raise UserError(f"output directory {final} was filled by something else while this command ran; "
+                                f"choose an empty one") from None
+            raise
+        fsync_files([final.parent])
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:

@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from sim2real.data.views import write_views_manifest
-    from sim2real.fileio import prepare_output_dir
+    from sim2real.fileio import staged_output_dir
     from sim2real.render.raycast import RayCaster, check_camera_region, render_views
     from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import MAX_BACKGROUND, Trajectory, iter_poses
@@ -54,15 +54,15 @@ def run(args: argparse.Namespace) -> int:
         poses = iter_poses(caster, args.views, args.height, args.width, None, args.seed, max_background=max_bg, K=K)
         first = next(poses)
         cameras, count = itertools.chain([first], poses), args.views
-    out = prepare_output_dir(args.out)
-    paths = [out / f"view_{i:05d}.npz" for i in range(count)]
-    render_views(scene, cameras, paths, workers=args.workers, preview=args.preview, caster=caster)
-    write_views_manifest(out, scene.name, args.scene, count)
+    with staged_output_dir(args.out) as out:
+        paths = [out / f"view_{i:05d}.npz" for i in range(count)]
+        render_views(scene, cameras, paths, workers=args.workers, preview=args.preview, caster=caster)
+        write_views_manifest(out, scene.name, args.scene, count)
     if args.trajectory:
         share = np.array([caster.background_share(c) for c in cameras])
         print(f"background (escaping rays) per view: median {np.median(share):.1%}, max {share.max():.1%}; "
               f"{int((share > max_bg).sum())} of {count} views above {max_bg:.0%}")
     elif caster.skipped_background:
         print(f"{caster.skipped_background} random views skipped: more than {max_bg:.0%} background (escaping rays)")
-    print(f"{counted(count, 'view')} of '{scene.name}' written to {out}")
+    print(f"{counted(count, 'view')} of '{scene.name}' written to {args.out}")
     return 0

@@ -17,7 +17,6 @@ leaves nothing behind.
 from __future__ import annotations
 
 import math
-import shutil
 from collections import Counter
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -29,7 +28,7 @@ from tqdm import tqdm
 
 from sim2real.data.real_manifest import FORMAT, mask_file, write_manifest
 from sim2real.errors import UserError
-from sim2real.fileio import temp_dir_beside
+from sim2real.fileio import check_output_dir, staged_output_dir
 from sim2real.footage import content, filters, highlights, labels as labelling
 from sim2real.footage.decode import Source, expected_frames, find_sources, iter_frames
 from sim2real.footage.undistort import Undistorter, read_calibration, stored_intrinsics
@@ -67,11 +66,6 @@ class Settings:
     (:mod:`sim2real.footage.highlights`); 'keep': frames are stored as they are."""
 
 
-def check_output(out: Path) -> None:
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise UserError(f"output {out} already exists; choose a new folder")
-
-
 def assign_splits(sources: list[Source], held_out: float, seed: int) -> dict[str, str]:
     """Source id -> 'train' | 'held_out' (module docstring)."""
     ids = sorted(s.id for s in sources)
@@ -86,7 +80,7 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
     """Build the real set ``out`` from ``srcs``; returns its manifest."""
     s = settings
     out_path = Path(out)
-    check_output(out_path)
+    check_output_dir(out_path)
     if (s.labels is None) != (s.label_map is None):
         raise UserError("--labels and --label-map go together")
     if s.class_table is not None and s.label_map is None:
@@ -103,16 +97,8 @@ def build_realset(srcs: list[str], out: str, settings: Settings, progress: bool 
     undistort = Undistorter(read_calibration(s.calibration)) if s.calibration else None
     sources = find_sources(srcs)
     splits = assign_splits(sources, s.held_out, s.seed)
-    tmp = temp_dir_beside(out_path)
-    try:
-        manifest = _build(sources, splits, tmp, s, label_map, label_dir, progress, undistort)
-        check_output(out_path)
-        if out_path.is_dir():
-            out_path.rmdir()
-        tmp.rename(out_path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    with staged_output_dir(out_path) as staged:
+        manifest = _build(sources, splits, staged, s, label_map, label_dir, progress, undistort)
     if len(sources) < 2:
         log("one source only: nothing is held out (the split is by source)")
     return manifest

@@ -45,7 +45,7 @@ from typing import Sequence
 import numpy as np
 
 from sim2real.errors import UserError
-from sim2real.fileio import prepare_output_dir
+from sim2real.fileio import staged_output_dir
 from sim2real.inference.anchors import Anchors, stand_in_options
 from sim2real.inference.realimages import find_real, shared_classes
 from sim2real.inference.rows import ROWS
@@ -175,51 +175,51 @@ def run_stages(model, scenes: list, trajs, trajectory_files, real, out, s: EvalS
     ``size``: (H, W, K), the views' size and 3x3 intrinsics.
     ``view_cameras`` (scene name -> cameras) replaces the random views, ``view_index`` their anchor
     frame indices."""
-    say = stderr_say(progress)
-    real_set = find_real(real)
-    status = fid_weights_status(fid_weights)
-    inception = load_fid_inception(status["path"], model.device) if status["available"] else None
-    out = prepare_output_dir(out)
-    H, W, _ = size
-    seconds: dict[str, float] = {}
+    with staged_output_dir(out) as out:  # the folder appears complete, or not at all
+        say = stderr_say(progress)
+        real_set = find_real(real)
+        status = fid_weights_status(fid_weights)
+        inception = load_fid_inception(status["path"], model.device) if status["available"] else None
+        H, W, _ = size
+        seconds: dict[str, float] = {}
 
-    # ---- anchors: the ceiling and the floor of every metric ----
-    anchor_opts, real_is_stand_in = stand_in_options(real_set.root)
-    anchors = {sc.name: Anchors(sc, seed=s.seed, pool=s.orb_max_k + 1, options=anchor_opts) for sc, _ in scenes} \
-        if s.anchors else {}
-    rows_shown = [r for r in ROWS if s.anchors or r in ("model", "a_ref")]
-    casters = {sc.name: RayCaster(sc) for sc, _ in scenes}
+        # ---- anchors: the ceiling and the floor of every metric ----
+        anchor_opts, real_is_stand_in = stand_in_options(real_set.root)
+        anchors = {sc.name: Anchors(sc, seed=s.seed, pool=s.orb_max_k + 1, options=anchor_opts) for sc, _ in scenes} \
+            if s.anchors else {}
+        rows_shown = [r for r in ROWS if s.anchors or r in ("model", "a_ref")]
+        casters = {sc.name: RayCaster(sc) for sc, _ in scenes}
 
-    # ---- real images for FID/KID, the proxy and style sources ----
-    rng = np.random.default_rng(s.seed)
-    use = real_set.images
-    if len(use) > s.max_real:
-        use = [use[i] for i in sorted(rng.choice(len(use), s.max_real, replace=False))]
-    real_imgs = real_set.frames(use, H, W)  # each real set frame's content window (realimages)
+        # ---- real images for FID/KID, the proxy and style sources ----
+        rng = np.random.default_rng(s.seed)
+        use = real_set.images
+        if len(use) > s.max_real:
+            use = [use[i] for i in sorted(rng.choice(len(use), s.max_real, replace=False))]
+        real_imgs = real_set.frames(use, H, W)  # each real set frame's content window (realimages)
 
-    with timed(seconds, "views"):
-        vs = views_stage(model, scenes, casters, anchors, real_imgs, s, rows_shown, size, progress,
-                         cameras=view_cameras, view_index=view_index)
-    with timed(seconds, "realism"):
-        realism = realism_stage(vs, real_imgs, inception, status, s, rows_shown, say, model.device)
-    del inception
-    with timed(seconds, "dice"):
-        seg = segmentation_stage(real_set, vs, s, model.device, rows_shown, progress, say,
-                                 classes=shared_classes(real_set, [sc.class_table for sc, _ in scenes]))
-    with timed(seconds, "consistency"):
-        cons = consistency_stage(model, scenes, casters, anchors, s, rows_shown, out, size, trajs, trajectory_files,
-                                 progress)
-    casters.clear()
-    seconds["total"] = time.perf_counter() - t_start
+        with timed(seconds, "views"):
+            vs = views_stage(model, scenes, casters, anchors, real_imgs, s, rows_shown, size, progress,
+                             cameras=view_cameras, view_index=view_index)
+        with timed(seconds, "realism"):
+            realism = realism_stage(vs, real_imgs, inception, status, s, rows_shown, say, model.device)
+        del inception
+        with timed(seconds, "dice"):
+            seg = segmentation_stage(real_set, vs, s, model.device, rows_shown, progress, say,
+                                     classes=shared_classes(real_set, [sc.class_table for sc, _ in scenes]))
+        with timed(seconds, "consistency"):
+            cons = consistency_stage(model, scenes, casters, anchors, s, rows_shown, out, size, trajs, trajectory_files,
+                                     progress)
+        casters.clear()
+        seconds["total"] = time.perf_counter() - t_start
 
-    header = {"format": FORMAT, "run": run_info,
-              "inputs": {"real": {"dir": str(Path(real).resolve()), "images": len(real_set.images), "images_used": len(use),
-                                  "labelled": len(real_set.labelled), "stand_in": real_is_stand_in}}}
-    metrics = assemble_metrics(header=header, s=s, rows_shown=rows_shown, realism=realism, seg=seg, cons=cons,
-                               time_independent=model.time_independent, real_is_stand_in=real_is_stand_in,
-                               anchor_options=anchor_opts.to_json(), seconds=seconds)
-    say("writing the report")
-    return report_stage(metrics, out, vs, real_imgs, cons["samples"], s)
+        header = {"format": FORMAT, "run": run_info,
+                  "inputs": {"real": {"dir": str(Path(real).resolve()), "images": len(real_set.images), "images_used": len(use),
+                                      "labelled": len(real_set.labelled), "stand_in": real_is_stand_in}}}
+        metrics = assemble_metrics(header=header, s=s, rows_shown=rows_shown, realism=realism, seg=seg, cons=cons,
+                                   time_independent=model.time_independent, real_is_stand_in=real_is_stand_in,
+                                   anchor_options=anchor_opts.to_json(), seconds=seconds)
+        say("writing the report")
+        return report_stage(metrics, out, vs, real_imgs, cons["samples"], s)
 
 
 def check_settings(s: EvalSettings) -> None:

@@ -9,7 +9,6 @@ pool) or a views folder through a :class:`~sim2real.inference.model.TrainedModel
 from __future__ import annotations
 
 import os
-import shutil
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -21,7 +20,7 @@ from tqdm import tqdm
 from sim2real.config import to_dict
 from sim2real.data.views import list_views
 from sim2real.errors import UserError
-from sim2real.fileio import atomic_write_json, deferred_fsync, fsync_files, prepare_output_dir, temp_dir_beside
+from sim2real.fileio import atomic_write_json, deferred_fsync, staged_output_dir
 from sim2real.inference.export import GroundTruthWriter
 from sim2real.inference.frames import chunked, iter_gbuffers, iter_view_files
 from sim2real.inference.model import TrainedModel, translate_batch
@@ -118,18 +117,8 @@ def translate_sequence(model: TrainedModel, source: TranslateSource, out: str | 
         raise UserError(f"--batch must be >= 1, got {batch}")
     fps = float(source.fps if fps is None else fps)
     _rate(fps)
-    final = prepare_output_dir(out)
-    out = temp_dir_beside(final, "partial-")
-    try:
-        with deferred_fsync():
-            manifest = _translate_into(model, source, out, batch, fps, workers, progress)
-        fsync_files([p for p in out.rglob("*") if p.is_file() and not p.is_symlink()])
-        os.replace(out, final)  # onto the empty folder prepare_output_dir accepted
-        fsync_files([final.parent])
-    except BaseException:
-        shutil.rmtree(out, ignore_errors=True)
-        raise
-    return manifest
+    with staged_output_dir(out) as staged, deferred_fsync():
+        return _translate_into(model, source, staged, batch, fps, workers, progress)
 
 
 def _translate_into(model: TrainedModel, source: TranslateSource, out: Path, batch: int, fps: float,

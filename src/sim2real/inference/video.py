@@ -28,7 +28,7 @@ import av
 import numpy as np
 
 from sim2real.errors import UserError, reason
-from sim2real.fileio import atomic_path, atomic_write_image, prepare_output_dir
+from sim2real.fileio import atomic_path, atomic_write_image, staged_output_dir
 from sim2real.threads import worker_count
 
 CRF = 18
@@ -157,15 +157,16 @@ def read_video(path: str | os.PathLike) -> tuple[int, int, int]:
 
 def write_frames(frames: Iterable[np.ndarray], out_dir: str | os.PathLike) -> list[str]:
     """Write uint8 (H, W, 3) RGB frames as ``out_dir/000000.png, 000001.png, ...`` (exact size,
-    each file atomic). ``out_dir`` must be new or empty. Returns the file names."""
-    out = prepare_output_dir(out_dir)
+    the folder appears when all are written). ``out_dir`` must be new or empty. Returns the file
+    names."""
     names, size = [], None
-    for i, frame in enumerate(frames):
-        a = _check_frame(frame, size, i)
-        size = a.shape[:2]
-        name = f"{i:06d}.png"
-        atomic_write_image(out / name, a)
-        names.append(name)
+    with staged_output_dir(out_dir) as out:
+        for i, frame in enumerate(frames):
+            a = _check_frame(frame, size, i)
+            size = a.shape[:2]
+            name = f"{i:06d}.png"
+            atomic_write_image(out / name, a)
+            names.append(name)
     return names
 
 

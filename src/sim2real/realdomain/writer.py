@@ -24,7 +24,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from sim2real.errors import UserError
-from sim2real.fileio import atomic_write_bytes, atomic_write_image, atomic_write_json, prepare_output_dir
+from sim2real.fileio import atomic_write_bytes, atomic_write_image, atomic_write_json, staged_output_dir
 from sim2real.pool import WorkerPool
 from sim2real.realdomain.appearance import Appearance, derive_seed
 from sim2real.realdomain.materials import SceneMaterial
@@ -140,60 +140,60 @@ def make_real_domain(
         if not Path(d).exists():
             raise UserError(f"scene directory {d} does not exist")
     scenes = [Scene.load(d) for d in scene_dirs]  # fails with a UserError before anything is written
-    out = prepare_output_dir(out)
-    dirs = [str(Path(d).resolve()) for d in scene_dirs]
-    appearances = [Appearance.sample(derive_seed(seed, _APPEARANCE, k)) for k in range(len(scenes))]
-    casters = [RayCaster(s) for s in scenes]
+    with staged_output_dir(out) as out:  # the folder appears complete, or not at all
+        dirs = [str(Path(d).resolve()) for d in scene_dirs]
+        appearances = [Appearance.sample(derive_seed(seed, _APPEARANCE, k)) for k in range(len(scenes))]
+        casters = [RayCaster(s) for s in scenes]
 
-    jobs, frame_entries = [], []
-    for i in range(images):
-        k = i % len(scenes)
-        pose_seed = derive_seed(seed, _POSE, i)
-        cam = sample_poses(casters[k], 1, height, width, fov_x_deg, seed=pose_seed)[0]
-        name = f"{i:06d}.png"
-        noise_seed = derive_seed(seed, _FRAME, i)
-        jobs.append((k, cam, noise_seed, str(out / "images" / name), str(out / "labels" / name)))
-        frame_entries.append({"image": f"images/{name}", "label": f"labels/{name}", "scene": k,
-                              "pose_seed": pose_seed, "noise_seed": noise_seed, **_camera_json(cam)})
-    seq_entries = []
-    for j in range(sequences):
-        k = j % len(scenes)
-        traj_seed = derive_seed(seed, _TRAJECTORY, j)
-        traj = make_trajectory(casters[k], frames, height, width, fov_x_deg, seed=traj_seed)
-        sdir = out / "sequences" / f"{j:03d}"
-        traj.save(sdir / "trajectory.txt")
-        entries = []
-        for t, cam in enumerate(traj.cameras):
-            name = f"{t:06d}.png"
-            noise_seed = derive_seed(seed, _SEQUENCE_FRAME, j, t)
-            jobs.append((k, cam, noise_seed, str(sdir / "images" / name), str(sdir / "labels" / name)))
-            entries.append({"image": f"images/{name}", "label": f"labels/{name}", "noise_seed": noise_seed,
-                            **_camera_json(cam)})
-        seq_entries.append({"dir": f"sequences/{j:03d}", "scene": k, "trajectory_seed": traj_seed,
-                            "trajectory": f"sequences/{j:03d}/trajectory.txt", "fps": traj.fps, "frames": entries})
-    del casters
+        jobs, frame_entries = [], []
+        for i in range(images):
+            k = i % len(scenes)
+            pose_seed = derive_seed(seed, _POSE, i)
+            cam = sample_poses(casters[k], 1, height, width, fov_x_deg, seed=pose_seed)[0]
+            name = f"{i:06d}.png"
+            noise_seed = derive_seed(seed, _FRAME, i)
+            jobs.append((k, cam, noise_seed, str(out / "images" / name), str(out / "labels" / name)))
+            frame_entries.append({"image": f"images/{name}", "label": f"labels/{name}", "scene": k,
+                                  "pose_seed": pose_seed, "noise_seed": noise_seed, **_camera_json(cam)})
+        seq_entries = []
+        for j in range(sequences):
+            k = j % len(scenes)
+            traj_seed = derive_seed(seed, _TRAJECTORY, j)
+            traj = make_trajectory(casters[k], frames, height, width, fov_x_deg, seed=traj_seed)
+            sdir = out / "sequences" / f"{j:03d}"
+            traj.save(sdir / "trajectory.txt")
+            entries = []
+            for t, cam in enumerate(traj.cameras):
+                name = f"{t:06d}.png"
+                noise_seed = derive_seed(seed, _SEQUENCE_FRAME, j, t)
+                jobs.append((k, cam, noise_seed, str(sdir / "images" / name), str(sdir / "labels" / name)))
+                entries.append({"image": f"images/{name}", "label": f"labels/{name}", "noise_seed": noise_seed,
+                                **_camera_json(cam)})
+            seq_entries.append({"dir": f"sequences/{j:03d}", "scene": k, "trajectory_seed": traj_seed,
+                                "trajectory": f"sequences/{j:03d}/trajectory.txt", "fps": traj.fps, "frames": entries})
+        del casters
 
-    run_jobs(dirs, appearances, opt, jobs, workers=workers, progress=progress)
+        run_jobs(dirs, appearances, opt, jobs, workers=workers, progress=progress)
 
-    table = scenes[0].class_table
-    for other in scenes[1:]:
-        table = table.merged(other.class_table, " of the stand-in domain")
-    manifest = {
-        "format": FORMAT,
-        "generator": "sim2real.realdomain",
-        "seed": int(seed),
-        "images": int(images),
-        "sequences": int(sequences),
-        "frames_per_sequence": int(frames) if sequences else 0,
-        "render": opt.to_json(),
-        "labels": {"classes": list(table.to_json()), "background": LABEL_BACKGROUND,
-                   "palette": table.palette_json(), "class_table": table.to_json()},
-        "scenes": [
-            {"dir": d, "name": s.name, "scene_seed": s.metadata.get("seed"), "appearance": a.to_json()}
-            for d, s, a in zip(dirs, scenes, appearances)
-        ],
-        "frames": frame_entries,
-        "sequence_list": seq_entries,
-    }
-    atomic_write_json(out / "manifest.json", manifest)
-    return manifest
+        table = scenes[0].class_table
+        for other in scenes[1:]:
+            table = table.merged(other.class_table, " of the stand-in domain")
+        manifest = {
+            "format": FORMAT,
+            "generator": "sim2real.realdomain",
+            "seed": int(seed),
+            "images": int(images),
+            "sequences": int(sequences),
+            "frames_per_sequence": int(frames) if sequences else 0,
+            "render": opt.to_json(),
+            "labels": {"classes": list(table.to_json()), "background": LABEL_BACKGROUND,
+                       "palette": table.palette_json(), "class_table": table.to_json()},
+            "scenes": [
+                {"dir": d, "name": s.name, "scene_seed": s.metadata.get("seed"), "appearance": a.to_json()}
+                for d, s, a in zip(dirs, scenes, appearances)
+            ],
+            "frames": frame_entries,
+            "sequence_list": seq_entries,
+        }
+        atomic_write_json(out / "manifest.json", manifest)
+        return manifest

@@ -23,7 +23,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,7 +30,7 @@ import numpy as np
 import trimesh
 
 from sim2real.errors import UserError
-from sim2real.fileio import read_json, temp_dir_beside
+from sim2real.fileio import read_json, staged_output_dir
 from sim2real.scene.classes import (
     BACKGROUND_PALETTE,
     DEFAULT_CLASSES,
@@ -180,24 +179,14 @@ class Scene:
 
     def save(self, directory: str | os.PathLike) -> Path:
         """Write the scene atomically: into a temporary sibling folder, then rename."""
-        directory = Path(directory)
-        if directory.exists() and any(directory.iterdir()):
-            raise UserError(f"output directory {directory} already holds other data; choose an empty one")
-        tmp = temp_dir_beside(directory)
-        try:
+        with staged_output_dir(directory) as tmp:
             (tmp / "meshes").mkdir()
             for o in self.objects:
                 # vertex_normal None (trimesh's default): normals only if cached, as before
                 o.mesh.export(tmp / "meshes" / f"{o.name}.ply", file_type="ply", encoding="binary",
                               vertex_normal=True if o.own_normals else None)
             (tmp / "scene.json").write_text(json.dumps(self.to_json(), indent=2) + "\n")
-            if directory.exists():
-                directory.rmdir()
-            os.replace(tmp, directory)
-        finally:
-            if tmp.exists():
-                shutil.rmtree(tmp, ignore_errors=True)
-        return directory
+        return Path(directory)
 
     @classmethod
     def load(cls, directory: str | os.PathLike) -> "Scene":
