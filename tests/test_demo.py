@@ -77,6 +77,26 @@ def test_demo_refuses_a_used_output_folder(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.txt"]
 
 
+def test_a_demo_stopped_while_training_leaves_nothing(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while the demo trains stops the training with a checkpoint (as in train); the demo
+    then stops too, with 130, instead of going on with a half-trained model, and removes what it
+    wrote, so the same command can run again."""
+    import signal
+
+    from sim2real.engine.trainer import Trainer
+
+    def interrupted(self, **kwargs):
+        self.stopped_by = signal.SIGINT
+
+    monkeypatch.setattr(Trainer, "train", interrupted)
+    out = tmp_path / "out"
+    code = main(["demo", "--out", str(out), "--train", "--minutes", "0.05", "--preset", "tiny", "--scenes", "1",
+                 "--real-images", "4", "--frames", "4", "--device", "cpu"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 130 and err[-1] == "demo stopped by SIGINT while training; nothing written", err
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("extra,words", [
     (["--frames", "1"], "at least 2 frames"),
     (["--fid-weights", "/nonexistent/pt_inception.pth"], "FID Inception weights not found"),

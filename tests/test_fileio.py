@@ -212,3 +212,32 @@ def test_a_staged_output_folder_appears_whole_or_not_at_all(tmp_path):
     assert _one_line(e) == (f"output directory {raced} was filled by something else while this command ran; "
                             f"choose an empty one")
     assert names(raced) == ["theirs.txt"] and not list(tmp_path.glob(".raced*"))
+
+
+def test_an_output_filled_in_place_is_removed_when_its_command_fails(tmp_path):
+    """removed_on_failure: kept when the block ends; when it raises, a folder it made is removed
+    and a user's empty folder is emptied (files, folders, links) but kept."""
+    from sim2real.fileio import removed_on_failure
+
+    ok = tmp_path / "ok"
+    with removed_on_failure(ok) as out:
+        (out / "a.txt").write_text("a")
+    assert (ok / "a.txt").read_text() == "a"
+
+    outside = tmp_path / "outside.txt"
+    outside.write_text("not the command's")
+    made = tmp_path / "made"
+    made.mkdir()
+    for out in (tmp_path / "new" / "demo", made):
+        with pytest.raises(RuntimeError, match="failed"):
+            with removed_on_failure(out) as d:
+                (d / "run").mkdir()
+                (d / "run" / "last.pt").write_bytes(b"x")
+                (d / "link").symlink_to(outside)
+                raise RuntimeError("failed")
+    assert not (tmp_path / "new" / "demo").exists() and list(made.iterdir()) == []
+    assert outside.read_text() == "not the command's"  # a link is removed, not what it points to
+    with pytest.raises(UserError, match="already holds other data"):
+        with removed_on_failure(ok):
+            pass
+    assert (ok / "a.txt").read_text() == "a"

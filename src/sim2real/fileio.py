@@ -182,6 +182,29 @@ def prepare_output_dir(path: str | os.PathLike, allowed: tuple[str, ...] = ()) -
 
 
 @contextlib.contextmanager
+def removed_on_failure(path: str | os.PathLike) -> Iterator[Path]:
+    """:func:`prepare_output_dir` for an output filled in place whose files name one another by
+    absolute path (the demo's scenes, real set, run and evaluation), which a renamed folder
+    (:func:`staged_output_dir`) would break. When the block raises, what it wrote is removed, and
+    the folder too if this made it: a rerun into the same name is accepted."""
+    path = check_output_dir(path)
+    made = not path.exists()
+    path.mkdir(parents=True, exist_ok=True)
+    try:
+        yield path
+    except BaseException:
+        if made:
+            shutil.rmtree(path, ignore_errors=True)
+        else:  # the user's empty folder: emptied again
+            for child in path.iterdir():
+                if child.is_dir() and not child.is_symlink():
+                    shutil.rmtree(child, ignore_errors=True)
+                else:
+                    child.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
 def staged_output_dir(path: str | os.PathLike) -> Iterator[Path]:
     """A new output folder that appears complete or not at all.
 
