@@ -99,6 +99,35 @@ def test_loader_batches_pickles_and_reads_only_the_fields_asked(exported):
     assert torch.equal(only["depth"], data[1]["depth"])
 
 
+def test_clips_stack_the_neighbouring_frames_and_their_relative_pose(exported):
+    """clip=(0, -1, 1) over 4 frames: 2 clips (centres 1 and 2), each key stacked in the offsets'
+    order; the relative pose of neighbours is the camera's 6 mm step, in the camera's axes."""
+    out, cams, _, frames = exported
+    data = GroundTruthDataset(out, clip=(0, -1, 1))
+    assert len(data) == T - 2
+    single = GroundTruthDataset(out)
+    for k, centre in enumerate((1, 2)):
+        s = data[k]
+        assert s["index"].tolist() == [centre, centre - 1, centre + 1]
+        assert s["image"].shape == (3, 3, H, W) and s["depth"].shape == (3, 1, H, W) and s["K"].shape == (3, 3, 3)
+        for t, i in enumerate((centre, centre - 1, centre + 1)):
+            assert torch.equal(s["image"][t], torch.from_numpy(frames[i]).permute(2, 0, 1).float() / 255)
+            for f in ("depth", "labels", "flow", "flow_mask", "camera_to_world"):
+                assert torch.equal(s[f][t], single[i][f]), f
+        c2w = s["camera_to_world"].double()
+        prev_in_centre = torch.linalg.inv(c2w[0]) @ c2w[1]  # frame centre - 1's camera in the centre's axes
+        step = torch.tensor(cams[0].world_to_camera[:3, :3] @ np.array([-STEP, 0.0, 0.0]))
+        assert torch.allclose(prev_in_centre[:3, 3], step, atol=1e-3)
+        assert torch.allclose(prev_in_centre[:3, :3], torch.eye(3, dtype=torch.float64), atol=1e-5)
+    assert torch.equal(data[-1]["index"], torch.tensor([2, 1, 3]))
+    with pytest.raises(IndexError):
+        data[T - 2]
+    pair = GroundTruthDataset(out, fields=["index"], clip=[1, 0])  # (next, this): 3 pairs
+    assert len(pair) == T - 1 and pair[0]["index"].tolist() == [1, 0] and pair[2]["index"].tolist() == [3, 2]
+    batch = next(iter(torch.utils.data.DataLoader(GroundTruthDataset(out, fields=["depth"], clip=(0, 1)), batch_size=2)))
+    assert batch["depth"].shape == (2, 2, 1, H, W)
+
+
 def test_without_frames_the_image_is_the_reference_rendering(exported, tmp_path):
     gbuffers = exported[2]
     export_ground_truth(gbuffers[:2], tmp_path / "gt")
@@ -113,6 +142,10 @@ def test_bad_input_is_one_line(exported, tmp_path):
         (lambda: GroundTruthDataset(tmp_path), f"{tmp_path} is neither a translate output nor a ground-truth export"),
         (lambda: GroundTruthDataset(out, fields=["depth", "normals"]), "unknown field 'normals'; choose from image,"),
         (lambda: GroundTruthDataset(out, stereo=True), f"{out} holds no stereo pair (no stereo/stereo.json)"),
+        (lambda: GroundTruthDataset(out, clip=(0, 0)), "clip takes distinct frame offsets such as (0, -1, 1), not (0, 0)"),
+        (lambda: GroundTruthDataset(out, clip=()), "clip takes distinct frame offsets"),
+        (lambda: GroundTruthDataset(out, clip=(0, 0.5)), "clip takes integer frame offsets such as (0, -1, 1), not (0, 0.5)"),
+        (lambda: GroundTruthDataset(out, clip=(-2, 2)), f"a clip spanning 5 frames needs a video of at least that many; this one has {T}"),
     ]
     for make, start in cases:
         with pytest.raises(UserError) as e:

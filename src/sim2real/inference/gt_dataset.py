@@ -31,12 +31,18 @@ disparity          (1, H, W) float32    with ``stereo=True``: the left pixel's d
 disparity_mask     (H, W) bool          with ``stereo=True``: the right eye sees the point
 =================  ===================  ==========================================================
 
-``fields`` names the keys to read; the others' files are not opened. The formats themselves:
-docs/formats.md (Ground-truth export, Translate output).
+``fields`` names the keys to read; the others' files are not opened. ``clip`` makes each sample a
+short clip, for networks that learn from neighbouring frames (self-supervised depth and pose, video
+models): ``clip=(0, -1, 1)`` stacks frames ``i``, ``i - 1`` and ``i + 1`` along a new first
+dimension of every key (``image`` (3, 3, H, W), ``camera_to_world`` (3, 4, 4), ``index`` (3,)), over
+the centre frames whose neighbours all exist (``len`` = frames less the clip's span).
+``torch.linalg.inv(c2w[a]) @ c2w[b]`` maps points from frame ``b``'s camera to frame ``a``'s.
+The formats themselves: docs/formats.md (Ground-truth export, Translate output).
 """
 
 from __future__ import annotations
 
+import operator
 import os
 from pathlib import Path
 from typing import Sequence
@@ -74,9 +80,11 @@ def _map_tensor(path: Path) -> torch.Tensor:
 class GroundTruthDataset(torch.utils.data.Dataset):
     """The frames of a translate output (or a ground-truth export) with their ground truth; see the
     module's docstring for the keys. ``stereo=True`` adds the right eye of a ``translate
-    --stereo`` output. Holds paths only, so that loader workers can pickle it."""
+    --stereo`` output; ``clip`` (frame offsets) makes each sample a clip of neighbouring frames.
+    Holds paths only, so that loader workers can pickle it."""
 
-    def __init__(self, root: str | os.PathLike, fields: Sequence[str] | None = None, stereo: bool = False):
+    def __init__(self, root: str | os.PathLike, fields: Sequence[str] | None = None, stereo: bool = False,
+                 clip: Sequence[int] | None = None):
         self.root = _ground_truth_folder(Path(root))
         manifest = read_json(self.root / "ground_truth.json", "ground-truth manifest")
         if not str(manifest.get("format", "")).startswith("sim2real-ground-truth/"):
@@ -105,6 +113,8 @@ class GroundTruthDataset(torch.utils.data.Dataset):
         if len(self.K) != self.frames or len(self.camera_to_world) != self.frames:
             raise UserError(f"{self.root}: {len(self.K)} intrinsics and {len(self.camera_to_world)} poses "
                             f"for {self.frames} frames")
+        self.clip = None if clip is None else _clip_offsets(clip, self.frames)
+        """The frame offsets of a clip sample, or None for single frames."""
         self._stereo = None
         if stereo:
             top = self.root.parent if self.root.name == "ground_truth" else self.root
@@ -114,12 +124,20 @@ class GroundTruthDataset(torch.utils.data.Dataset):
             self.baseline_mm = float(read_json(top / "stereo" / "stereo.json", "stereo file")["baseline_mm"])
 
     def __len__(self) -> int:
-        return self.frames
+        return self.frames if self.clip is None else self.frames - (max(self.clip) - min(self.clip))
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        if not -self.frames <= i < self.frames:
-            raise IndexError(f"frame {i} of {self.frames}")
-        i = int(i) % self.frames
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(f"{'frame' if self.clip is None else 'clip'} {i} of {n}")
+        i = int(i) % n
+        if self.clip is None:
+            return self._frame(i)
+        centre = i - min(self.clip)
+        frames = [self._frame(centre + k) for k in self.clip]
+        return {f: torch.stack([fr[f] for fr in frames]) for f in self.fields}
+
+    def _frame(self, i: int) -> dict[str, torch.Tensor]:
         name = f"{i:06d}"
         h, w = self.size
         read = {
@@ -142,6 +160,20 @@ class GroundTruthDataset(torch.utils.data.Dataset):
                 "disparity_mask": lambda: _mask(top / "stereo" / "disparity_mask" / f"{name}.png"),
             })
         return {f: read[f]() for f in self.fields}
+
+
+def _clip_offsets(clip: Sequence[int], frames: int) -> tuple[int, ...]:
+    """``clip`` as distinct integer frame offsets that fit in a video of ``frames`` frames."""
+    try:
+        offsets = tuple(operator.index(k) for k in clip)
+    except TypeError:
+        raise UserError(f"clip takes integer frame offsets such as (0, -1, 1), not {clip!r}") from None
+    if not offsets or len(set(offsets)) != len(offsets):
+        raise UserError(f"clip takes distinct frame offsets such as (0, -1, 1), not {clip!r}")
+    span = max(offsets) - min(offsets)
+    if span >= frames:
+        raise UserError(f"a clip spanning {span + 1} frames needs a video of at least that many; this one has {frames}")
+    return offsets
 
 
 def _image_tensor(path: Path) -> torch.Tensor:
