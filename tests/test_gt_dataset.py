@@ -128,6 +128,46 @@ def test_clips_stack_the_neighbouring_frames_and_their_relative_pose(exported):
     assert batch["depth"].shape == (2, 2, 1, H, W)
 
 
+def test_track_fields_follow_the_floor_by_the_pinhole_step(exported, tmp_path):
+    """A tracked floor point seen in two neighbouring frames moves by -fx * step / depth along x
+    and not along y; in its own frame it lies on the floor's depth; tracks are loaded by each
+    process, not pickled."""
+    out, cams, _, _ = exported
+    data = GroundTruthDataset(out, fields=["depth", "tracks", "track_visible", "index"], clip=(0, 1))
+    raw = np.load(out / "ground_truth" / "tracks" / "tracks.npz")
+    fx = cams[0].K[0, 0]
+    step_cam = cams[0].world_to_camera[:3, :3] @ np.array([STEP, 0.0, 0.0])
+    shift = -fx * step_cam[0] / HEIGHT
+    on_floor_total = 0
+    for k in range(len(data)):
+        s = data[k]
+        xy, seen, depth = s["tracks"], s["track_visible"], s["depth"][0, 0]
+        for t, i in enumerate(s["index"].tolist()):  # the file's columns of the sample's frames
+            assert np.array_equal(xy[t].numpy(), raw["tracks"][:, i], equal_nan=True)
+            assert np.array_equal(seen[t].numpy(), raw["visible"][:, i])
+        assert xy.shape[0] == 2 and xy.shape[2] == 2 and xy.dtype == torch.float32 and seen.dtype == torch.bool
+        both = seen[0] & seen[1]
+        col = xy[0, :, 0].floor().long().clamp(0, W - 1)
+        row = xy[0, :, 1].floor().long().clamp(0, H - 1)
+        # the floor less a pixel around the box: a point there is the floor's, not the box's edge
+        floor_px = ((depth - HEIGHT).abs() < 1e-3).float()[None, None]
+        inner = -torch.nn.functional.max_pool2d(-floor_px, 3, stride=1, padding=1)[0, 0] > 0.5
+        floor = both & inner[row, col]
+        on_floor_total += int(floor.sum())
+        d = xy[1, floor] - xy[0, floor]
+        assert torch.allclose(d[:, 0], torch.tensor(shift, dtype=torch.float32), atol=1e-3)
+        assert torch.allclose(d[:, 1], torch.tensor(0.0), atol=1e-3)
+    assert on_floor_total > 20
+    assert pickle.loads(pickle.dumps(data))._tracks is None and data._tracks is not None
+    bare = tmp_path / "no_tracks"
+    bare.mkdir()
+    for name in ("ground_truth.json", "intrinsics.json", "poses_tum_mm.txt"):
+        (bare / name).write_bytes((out / "ground_truth" / name).read_bytes())
+    assert len(GroundTruthDataset(bare, fields=["K"])) == T
+    with pytest.raises(UserError, match=f"{bare} holds no point tracks"):
+        GroundTruthDataset(bare, fields=["K", "tracks"])
+
+
 def test_without_frames_the_image_is_the_reference_rendering(exported, tmp_path):
     gbuffers = exported[2]
     export_ground_truth(gbuffers[:2], tmp_path / "gt")

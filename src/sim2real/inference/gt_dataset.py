@@ -29,9 +29,14 @@ disparity          (1, H, W) float32    with ``stereo=True``: the left pixel's d
                                         (its point is at ``(u - d, v)`` in the right image), 0 =
                                         no surface
 disparity_mask     (H, W) bool          with ``stereo=True``: the right eye sees the point
+tracks             (N, 2) float32       on request only: the (x, y) pixel position in frame ``i``
+                                        of each of the video's N tracked surface points
+                                        (``tracks/tracks.npz``; NaN behind the camera)
+track_visible      (N,) bool            on request only: frame ``i`` sees the point
 =================  ===================  ==========================================================
 
-``fields`` names the keys to read; the others' files are not opened. ``clip`` makes each sample a
+``fields`` names the keys to read; the others' files are not opened. The tracks' keys are read
+only when named (every sample then carries all N points; the file is loaded once per process). ``clip`` makes each sample a
 short clip, for networks that learn from neighbouring frames (self-supervised depth and pose, video
 models): ``clip=(0, -1, 1)`` stacks frames ``i``, ``i - 1`` and ``i + 1`` along a new first
 dimension of every key (``image`` (3, 3, H, W), ``camera_to_world`` (3, 4, 4), ``index`` (3,)), over
@@ -59,6 +64,7 @@ from sim2real.inference.realimages import load_label
 
 FIELDS = ("image", "depth", "labels", "flow", "flow_mask", "K", "camera_to_world", "index")
 STEREO_FIELDS = ("right_image", "disparity", "disparity_mask")
+TRACK_FIELDS = ("tracks", "track_visible")
 
 
 def _ground_truth_folder(root: Path) -> Path:
@@ -92,6 +98,7 @@ class GroundTruthDataset(torch.utils.data.Dataset):
                             f"(format {manifest.get('format')!r})")
         known = FIELDS + (STEREO_FIELDS if stereo else ())
         self.fields = tuple(known if fields is None else fields)
+        known += TRACK_FIELDS
         unknown = [f for f in self.fields if f not in known]
         if unknown:
             raise UserError(f"unknown field {unknown[0]!r}; choose from {', '.join(known)}"
@@ -113,6 +120,9 @@ class GroundTruthDataset(torch.utils.data.Dataset):
         if len(self.K) != self.frames or len(self.camera_to_world) != self.frames:
             raise UserError(f"{self.root}: {len(self.K)} intrinsics and {len(self.camera_to_world)} poses "
                             f"for {self.frames} frames")
+        self._tracks: dict[str, np.ndarray] | None = None  # loaded at the first sample that asks
+        if set(self.fields) & set(TRACK_FIELDS) and not (self.root / "tracks" / "tracks.npz").is_file():
+            raise UserError(f"{self.root} holds no point tracks (no tracks/tracks.npz)")
         self.clip = None if clip is None else _clip_offsets(clip, self.frames)
         """The frame offsets of a clip sample, or None for single frames."""
         self._stereo = None
@@ -122,6 +132,19 @@ class GroundTruthDataset(torch.utils.data.Dataset):
                 raise UserError(f"{top} holds no stereo pair (no stereo/stereo.json): translate it with --stereo MM")
             self._stereo = top
             self.baseline_mm = float(read_json(top / "stereo" / "stereo.json", "stereo file")["baseline_mm"])
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_tracks": None}  # paths only: each loader worker loads its own
+
+    def _track(self, name: str, i: int) -> torch.Tensor:
+        if self._tracks is None:
+            path = self.root / "tracks" / "tracks.npz"
+            try:
+                with np.load(path) as f:
+                    self._tracks = {"tracks": f["tracks"], "track_visible": f["visible"]}
+            except (OSError, ValueError, KeyError) as e:
+                raise UserError(f"cannot read point tracks {path}: {reason(e)}") from None
+        return torch.from_numpy(np.ascontiguousarray(self._tracks[name][:, i]))
 
     def __len__(self) -> int:
         return self.frames if self.clip is None else self.frames - (max(self.clip) - min(self.clip))
@@ -151,6 +174,8 @@ class GroundTruthDataset(torch.utils.data.Dataset):
             "K": lambda: self.K[i].clone(),
             "camera_to_world": lambda: self.camera_to_world[i].clone(),
             "index": lambda: torch.tensor(i),
+            "tracks": lambda: self._track("tracks", i),
+            "track_visible": lambda: self._track("track_visible", i),
         }
         if self._stereo is not None:
             top = self._stereo
