@@ -63,6 +63,23 @@ def test_units_axes_rate_and_refusals(tmp_path):
         trajectory_from_poses(tmp_path / "none.txt", K, 64, 96)
 
 
+def test_unevenly_spaced_rows_are_noted_unless_resampled(tmp_path):
+    """Rows 0.04 s apart with one 0.12 s gap (a tracker's dropped samples): one note naming the
+    gap; the rows within 1.5x of their median, or resampled with fps, give none."""
+    c2w = np.tile(np.eye(4), (5, 1, 1))
+    gap = _rows(tmp_path / "gap.txt", [0.0, 0.04, 0.08, 0.20, 0.24], c2w)
+    notes = []
+    traj, _ = trajectory_from_poses(gap, K, 64, 96, note=notes.append)
+    assert len(traj.cameras) == 5 and traj.fps == pytest.approx(25.0)
+    assert notes == ["1 of 4 pose intervals are more than 1.5x off their median 0.04 s (first after pose 3: 0.12 s), "
+                     "yet each row becomes one frame at 25 fps: --fps F resamples the path evenly in time"]
+    notes.clear()
+    assert len(trajectory_from_poses(gap, K, 64, 96, fps=25.0, note=notes.append)[0].cameras) == 7 and notes == []
+    jitter = _rows(tmp_path / "jitter.txt", [0.0, 0.04, 0.09, 0.12, 0.16], c2w)  # 0.03-0.05 s: within 1.5x
+    trajectory_from_poses(jitter, K, 64, 96, note=notes.append)
+    assert notes == []
+
+
 @pytest.fixture(scope="module")
 def scene_and_path(tmp_path_factory):
     root = tmp_path_factory.mktemp("poses")

@@ -198,7 +198,8 @@ def _own_poses(args: argparse.Namespace, K, scene, caster):
     else:
         if args.camera is not None:
             raise UserError("--camera names a camera of a .blend file; --poses rows are one camera's")
-        traj, rows = trajectory_from_poses(args.poses, K, args.height, args.width, args.units, axes, args.fps)
+        traj, rows = trajectory_from_poses(args.poses, K, args.height, args.width, args.units, axes, args.fps,
+                                           note=lambda m: print(f"sim2real: note: {m}", file=sys.stderr))
     centres = np.stack([c.camera_to_world[:3, 3] for c in traj.cameras])
     organ = caster.containing_object(centres)
     outside = ~caster.enclosed(centres) if scene.objects_of("abdominal_wall") else np.zeros(len(centres), bool)

@@ -8,6 +8,7 @@ y down, z forward), and on request resampled at a fixed frame rate.
 from __future__ import annotations
 
 import os
+from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -37,12 +38,19 @@ def resample(times: np.ndarray, c2w: np.ndarray, fps: float) -> tuple[np.ndarray
     return t, out
 
 
+UNEVEN = 1.5
+"""Row intervals beyond this factor of their median (either way) are noted as uneven."""
+
+
 def trajectory_from_poses(path: str | os.PathLike, K: np.ndarray, height: int, width: int, units: str = "mm",
-                          axes: str = "opencv", fps: float | None = None) -> tuple[Trajectory, int]:
+                          axes: str = "opencv", fps: float | None = None,
+                          note: Callable[[str], None] | None = None) -> tuple[Trajectory, int]:
     """The trajectory of the poses in ``path`` seen through ``K`` at ``width`` x ``height``, and
     the number of rows read. ``units`` of the translations (mm, cm, m); ``axes`` of the cameras
     (:data:`AXES`); ``fps``: resample at this rate (:func:`resample`), None: one frame per row at
-    the rows' median rate. Timestamps must increase."""
+    the rows' median rate, where ``note`` is told when the rows are unevenly spaced in time
+    (dropped samples of a tracker: the video's motion per frame would jump there). Timestamps
+    must increase."""
     if units not in UNITS:
         raise UserError(f"units must be one of {', '.join(UNITS)}, not {units}")
     if axes not in AXES:
@@ -62,6 +70,12 @@ def trajectory_from_poses(path: str | os.PathLike, K: np.ndarray, height: int, w
     if fps is not None and len(rows) > 1:
         _, c2w = resample(times, c2w, fps)
     rate = fps if fps is not None else (1.0 / float(np.median(steps)) if len(rows) > 1 else 5.0)
+    if fps is None and note is not None and len(steps) > 1:
+        uneven = (steps > UNEVEN / rate) | (steps < 1.0 / (UNEVEN * rate))
+        if uneven.any():
+            note(f"{int(uneven.sum())} of {len(steps)} pose intervals are more than {UNEVEN:g}x off their median "
+                 f"{1.0 / rate:.3g} s (first after pose {int(np.argmax(uneven)) + 1}: {steps[np.argmax(uneven)]:.3g} s), "
+                 f"yet each row becomes one frame at {rate:.3g} fps: --fps F resamples the path evenly in time")
     cams = [Camera(np.asarray(K, dtype=np.float64), invert_rigid(T), height, width) for T in c2w]
     return Trajectory(cams, fps=rate), len(rows)
 
