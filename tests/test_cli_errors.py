@@ -273,3 +273,21 @@ def test_a_full_disk_is_one_line_and_leaves_nothing_behind(capsys, tmp_path, mon
     code, err = run(capsys, "scene", "generate", "--seed", "0", "--out", str(tmp_path / "scene"))
     assert code == 1 and err == "sim2real: error: No space left on device: free space on that disk or write elsewhere"
     assert list(tmp_path.iterdir()) == []  # no scene folder, no temporary one
+
+
+def test_version_and_help_speak_of_the_product(capsys):
+    """--version gives the installed package's version (the one pip recorded from pyproject.toml);
+    --help says what the tool does and where to go next, not how its code is arranged."""
+    from importlib.metadata import version
+
+    from sim2real.cli.main import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out == f"sim2real {version('sim2real')}\n"
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert e.value.code == 0
+    assert "laparoscopic-looking videos" in text and "'sim2real COMMAND --help' lists a command's options" in text
+    assert "register" not in text and "module" not in text
