@@ -291,3 +291,10 @@ def test_version_and_help_speak_of_the_product(capsys):
     assert e.value.code == 0
     assert "laparoscopic-looking videos" in text and "'sim2real COMMAND --help' lists a command's options" in text
     assert "register" not in text and "module" not in text
+    for argv, first in ((["train", "--help"], "Train neural textures and the translator"),
+                        (["scene", "trajectory", "--help"], "A smooth camera path through a scene"),
+                        (["realset", "--help"], "sim2real realset: make a real set")):
+        with pytest.raises(SystemExit):
+            main(argv)
+        text = capsys.readouterr().out
+        assert first in text and "``" not in text, argv  # each command's help opens with what it does

@@ -28,6 +28,20 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, exit code 2, no usage dump
         self.exit(2, f"sim2real: error: {message}\n")
 
+    def add_subparsers(self, **kwargs):
+        kwargs.setdefault("action", _Commands)
+        return super().add_subparsers(**kwargs)
+
+
+class _Commands(argparse._SubParsersAction):
+    """Sub-commands whose own ``--help`` starts with the line the command list shows for them."""
+
+    def add_parser(self, name, **kwargs):
+        text = kwargs.get("help")
+        if text and "description" not in kwargs:
+            kwargs["description"] = f"{text[0].upper()}{text[1:]}."
+        return super().add_parser(name, **kwargs)
+
 
 DESCRIPTION = ("Turn simulated surgical 3D scenes into laparoscopic-looking videos that stay consistent over "
                "the long term, with exact ground truth (depth, optical flow, camera poses, labels).")

@@ -27,7 +27,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "realdomain",
         help="render stand-in 'real' laparoscopic frames with labels (the embedded target domain)",
-        description=__doc__,
+        description=__doc__.replace("``", ""),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--scenes", nargs="+", required=True, metavar="DIR", help="scene directories (scene.json)")

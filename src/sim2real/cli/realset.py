@@ -33,7 +33,7 @@ _distance = int_range(-1, 64)
 
 def register(sub) -> None:
     p = sub.add_parser("realset", help="make a real set (domain B) from videos and folders of frames",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__.replace("``", ""), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("sources", nargs="+", metavar="SRC",
                    help="video files (VIDEO@START-END for a range) or frame folders")
     p.add_argument("--out", required=True, help="new output folder")
