@@ -203,6 +203,17 @@ def test_a_staged_output_folder_appears_whole_or_not_at_all(tmp_path):
             body.append(1)
     assert _one_line(e).startswith(f"output directory {empty} already holds other data (b.txt, ...)") and not body
 
+    disk = tmp_path / "big_disk"
+    (disk / "videos").mkdir(parents=True)
+    (tmp_path / "link").symlink_to(disk / "videos")  # an empty folder elsewhere, linked
+    (tmp_path / "dangling").symlink_to(disk / "later")  # a folder still to be made there
+    for link in ("link", "dangling"):
+        with staged_output_dir(tmp_path / link) as staged:
+            assert staged.parent == disk  # written where the link points
+            (staged / "c.txt").write_text(link)
+        assert (tmp_path / link).is_symlink() and (tmp_path / link / "c.txt").read_text() == link
+    assert names(disk) == ["later", "videos"]
+
     raced = tmp_path / "raced"
     with pytest.raises(UserError) as e:
         with staged_output_dir(raced) as staged:

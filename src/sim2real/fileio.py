@@ -214,8 +214,9 @@ def staged_output_dir(path: str | os.PathLike) -> Iterator[Path]:
     the sibling is renamed to ``path``. When the block raises (an error, Ctrl-C, a full disk), the
     sibling is removed and ``path`` is left as it was, so neither a reader nor a rerun finds a
     half-written output, nor an empty folder the failed command made; only a kill -9 leaves the
-    hidden sibling behind."""
-    final = check_output_dir(path)
+    hidden sibling behind. A ``path`` that is a symbolic link (to a folder on a larger disk, say)
+    is followed: the folder is made and renamed where the link points."""
+    final = Path(os.path.realpath(check_output_dir(path)))
     tmp = temp_dir_beside(final, "partial-")
     try:
         yield tmp
