@@ -298,3 +298,30 @@ def test_version_and_help_speak_of_the_product(capsys):
             main(argv)
         text = capsys.readouterr().out
         assert first in text and "``" not in text, argv  # each command's help opens with what it does
+
+
+def test_sigterm_unwinds_a_command_and_leaves_no_output(tmp_path):
+    """SIGTERM (a scheduler's pre-emption, 'kill') while a command writes its output: the command
+    unwinds as on Ctrl-C, says so in one line, exits with 143 (128 + SIGTERM) and leaves neither
+    its output folder nor the hidden one it was filling (Python's default would end the process
+    where it stands, leaving the hidden folder)."""
+    import signal
+    import time
+
+    generate_scene(0).save(tmp_path / "scene")
+    out = tmp_path / "real"
+    proc = subprocess.Popen([sys.executable, "-m", "sim2real.cli.main", "realdomain", "--scenes", str(tmp_path / "scene"),
+                             "--images", "1000", "--height", "32", "--width", "64", "--workers", "1", "--quiet",
+                             "--out", str(out)], stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not list(tmp_path.glob(".real.partial-*/images/*.png")) and time.monotonic() < deadline:
+        time.sleep(0.05)  # until frames are being written into the hidden folder
+    assert proc.poll() is None, proc.stderr.read()
+    proc.send_signal(signal.SIGTERM)
+    try:
+        code = proc.wait(timeout=60)
+    finally:
+        proc.kill()
+    err = proc.stderr.read().strip().splitlines()
+    assert code == 143 and err[-1] == "sim2real: terminated (SIGTERM)", (code, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]

@@ -7,8 +7,10 @@ import gc
 import importlib
 import os
 import re
+import signal
 import sys
 
+from sim2real.engine.stop import Terminated, sigterm_raises
 from sim2real.errors import UserError, machine_error
 
 COMMANDS = ("scene", "blend", "render", "realdomain", "realset", "train", "translate", "evaluate", "demo", "benchmark",
@@ -66,7 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     otherwise took 0.3 s after trimesh and scipy were imported; nothing is left open by then."""
     args = build_parser().parse_args(argv)
     try:
-        code = int(args.func(args) or 0)
+        with sigterm_raises():
+            code = int(args.func(args) or 0)
         if argv is None:
             gc.freeze()
         return code
@@ -76,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("sim2real: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("sim2real: terminated (SIGTERM)", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except Exception as e:  # an unexpected failure still gets one line; SIM2REAL_DEBUG=1 shows it all
         if os.environ.get("SIM2REAL_DEBUG"):
             raise

@@ -20,9 +20,11 @@ shuts its workers down itself.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import threading
+from typing import Iterator
 
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 
@@ -77,6 +79,33 @@ class StopSignals:
                 os.write(2, note.encode())
             except OSError:
                 pass
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread while :func:`sigterm_raises` is active."""
+
+
+@contextlib.contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """Within this block SIGTERM raises :class:`Terminated` in the main thread, as Ctrl-C raises
+    KeyboardInterrupt, instead of ending the process where it stands: a command stopped by a
+    scheduler or ``kill`` unwinds and removes its temporary outputs (a translation's hidden
+    folder of gigabytes) on the way out. :class:`StopSignals` takes over while a run trains and
+    restores this after. An inherited ``SIG_IGN`` stays; off the main thread nothing changes."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is signal.SIG_IGN:
+        yield
+        return
+
+    def terminate(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the clean-up short
+        raise Terminated
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def ignore_in_worker() -> None:
