@@ -138,3 +138,46 @@ def test_counts_above_the_ceilings_are_marked_not_ranked():
              "anchors": {"ceiling": row(2.0)}}
     lines = {l.split(" | ")[0]: l for l in markdown(table).splitlines() if l.startswith("| ")}
     assert lines["| high"].count("(3⁺)") == 3 and "⁺" not in lines["| low"] and "⁺" not in lines["| *ceiling*"]
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, "a training fails"])
+def test_a_stopped_parallel_benchmark_stops_its_running_trainings(tmp_path, monkeypatch, stop):
+    """Ctrl-C or SIGTERM to the benchmark (here at its first poll), or one training failing, stops
+    the trainings still running (SIGTERM: each stops after its step with a checkpoint, resumable)
+    and waits for them, instead of leaving them to train on without it."""
+    from sim2real.comparison import run
+    from sim2real.errors import UserError
+    from sim2real.presets import budgeted
+
+    procs = []
+
+    class Training:  # a training process that is still running, unless it is the failing one
+        def __init__(self, argv, **kwargs):
+            self.calls, self.failed = [], stop != KeyboardInterrupt and not procs
+            procs.append(self)
+
+        def poll(self):
+            return 1 if self.failed else None
+
+        returncode = property(lambda self: 1 if self.failed else None)
+
+        def terminate(self):
+            self.calls.append("terminate")
+
+        def wait(self):
+            self.calls.append("wait")
+            return -15
+
+    def first_poll(seconds):
+        if stop == KeyboardInterrupt:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(run.subprocess, "Popen", Training)
+    monkeypatch.setattr(run.time, "sleep", first_poll)
+    cfg = budgeted("tiny", "ours", "cpu")
+    settings = run.BenchmarkSettings(methods=["a", "b", "c"], iterations=2, parallel=2)
+    with pytest.raises(KeyboardInterrupt if stop == KeyboardInterrupt else UserError):
+        run._train_all({"a": cfg, "b": cfg, "c": cfg}, settings, [tmp_path], tmp_path, tmp_path)
+    assert len(procs) == 2  # the third never started
+    running = procs if stop == KeyboardInterrupt else procs[1:]
+    assert all(p.calls == ["terminate", "wait"] for p in running) and all(not p.calls for p in procs if p not in running)

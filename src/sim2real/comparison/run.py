@@ -270,6 +270,15 @@ def train_job(job_file: str) -> None:
            Path(job["out"]))
 
 
+def _stop(running: list) -> None:
+    """SIGTERM to each running training process: it stops after its step with a checkpoint."""
+    for _, proc, _ in running:
+        proc.terminate()
+    for _, proc, _ in running:
+        proc.wait()
+    running.clear()
+
+
 def _train_all(configs: dict, s: BenchmarkSettings, scenes: list[Path], real: Path, out: Path) -> dict:
     """Train every method for its budget: one after the other, or ``s.parallel`` at a time, each
     in its own process with an equal share of the cores."""
@@ -278,33 +287,34 @@ def _train_all(configs: dict, s: BenchmarkSettings, scenes: list[Path], real: Pa
         threads = max(1, usable_cores() // s.parallel)
         _say(f"training {len(pending)} methods, {s.parallel} at a time on {threads} thread(s) each")
         running: list[tuple[str, subprocess.Popen, Path]] = []
-        queue = list(pending)
-        while queue or running:
-            while queue and len(running) < s.parallel:
-                name = queue.pop(0)
-                (out / "jobs").mkdir(exist_ok=True)
-                job = out / "jobs" / f"{name}.json"
-                atomic_write_json(job, {"name": name, "config": to_dict(configs[name]), "settings": dataclasses.asdict(s),
-                                        "scenes": [str(d) for d in scenes], "real": str(real), "out": str(out),
-                                        "threads": threads})
-                log = out / "jobs" / f"{name}.log"
-                env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
-                with open(log, "w") as f:
-                    proc = subprocess.Popen([sys.executable, "-c", "import sys; from sim2real.comparison.run import "
-                                             "train_job; train_job(sys.argv[1])", str(job)], stdout=f, stderr=f, env=env)
-                running.append((name, proc, log))
-            time.sleep(1.0)
-            for item in list(running):
-                name, proc, log = item
-                if proc.poll() is None:
-                    continue
-                running.remove(item)
-                if proc.returncode != 0:
-                    for _, p, _ in running:
-                        p.terminate()  # they stop after their step with a checkpoint
-                        p.wait()
-                    tail = [ln for ln in log.read_text().splitlines() if ln.strip()][-1:] or ["(no output)"]
-                    raise UserError(f"training of {name} failed ({tail[0]}); log {log}; continue with --resume")
+        try:
+            queue = list(pending)
+            while queue or running:
+                while queue and len(running) < s.parallel:
+                    name = queue.pop(0)
+                    (out / "jobs").mkdir(exist_ok=True)
+                    job = out / "jobs" / f"{name}.json"
+                    atomic_write_json(job, {"name": name, "config": to_dict(configs[name]),
+                                            "settings": dataclasses.asdict(s), "scenes": [str(d) for d in scenes],
+                                            "real": str(real), "out": str(out), "threads": threads})
+                    log = out / "jobs" / f"{name}.log"
+                    env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
+                    with open(log, "w") as f:
+                        proc = subprocess.Popen([sys.executable, "-c", "import sys; from sim2real.comparison.run import "
+                                                 "train_job; train_job(sys.argv[1])", str(job)], stdout=f, stderr=f, env=env)
+                    running.append((name, proc, log))
+                time.sleep(1.0)
+                for item in list(running):
+                    name, proc, log = item
+                    if proc.poll() is None:
+                        continue
+                    running.remove(item)
+                    if proc.returncode != 0:
+                        tail = [ln for ln in log.read_text().splitlines() if ln.strip()][-1:] or ["(no output)"]
+                        raise UserError(f"training of {name} failed ({tail[0]}); log {log}; continue with --resume")
+        except BaseException:  # Ctrl-C, SIGTERM or a failure here: the others stop with a checkpoint too
+            _stop(running)
+            raise
     return {n: _train(n, cfg, s, scenes, real, out) for n, cfg in configs.items()}
 
 
