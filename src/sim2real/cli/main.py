@@ -10,7 +10,7 @@ import re
 import signal
 import sys
 
-from sim2real.engine.stop import Terminated, sigterm_raises
+from sim2real.engine.stop import Terminated, exit_code, sigterm_raises
 from sim2real.errors import UserError, machine_error
 
 COMMANDS = ("scene", "blend", "render", "realdomain", "realset", "train", "translate", "evaluate", "demo", "benchmark",
@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except Terminated:
         print("sim2real: terminated (SIGTERM)", file=sys.stderr)
-        return 128 + signal.SIGTERM
+        return exit_code(signal.SIGTERM)
     except Exception as e:  # an unexpected failure still gets one line; SIM2REAL_DEBUG=1 shows it all
         if os.environ.get("SIM2REAL_DEBUG"):
             raise

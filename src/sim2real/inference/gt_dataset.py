@@ -36,11 +36,13 @@ track_visible      (N,) bool            on request only: frame ``i`` sees the po
 =================  ===================  ==========================================================
 
 ``fields`` names the keys to read; the others' files are not opened. The tracks' keys are read
-only when named (every sample then carries all N points; the file is loaded once per process). ``clip`` makes each sample a
-short clip, for networks that learn from neighbouring frames (self-supervised depth and pose, video
-models): ``clip=(0, -1, 1)`` stacks frames ``i``, ``i - 1`` and ``i + 1`` along a new first
-dimension of every key (``image`` (3, 3, H, W), ``camera_to_world`` (3, 4, 4), ``index`` (3,)), over
-the centre frames whose neighbours all exist (``len`` = frames less the clip's span).
+only when named (every sample then carries all N points; the file is loaded once per process).
+
+``clip`` makes each sample a short clip, for networks that learn from neighbouring frames
+(self-supervised depth and pose, point trackers, video models): ``clip=(0, -1, 1)`` stacks frames
+``i``, ``i - 1`` and ``i + 1`` along a new first dimension of every key (``image`` (3, 3, H, W),
+``camera_to_world`` (3, 4, 4), ``index`` (3,)), over the centre frames whose neighbours all exist
+(``len`` = frames less the clip's span).
 ``torch.linalg.inv(c2w[a]) @ c2w[b]`` maps points from frame ``b``'s camera to frame ``a``'s.
 The formats themselves: docs/formats.md (Ground-truth export, Translate output).
 """
@@ -49,6 +51,7 @@ from __future__ import annotations
 
 import operator
 import os
+import zipfile
 from pathlib import Path
 from typing import Sequence
 
@@ -142,7 +145,7 @@ class GroundTruthDataset(torch.utils.data.Dataset):
             try:
                 with np.load(path) as f:
                     self._tracks = {"tracks": f["tracks"], "track_visible": f["visible"]}
-            except (OSError, ValueError, KeyError) as e:
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
                 raise UserError(f"cannot read point tracks {path}: {reason(e)}") from None
         return torch.from_numpy(np.ascontiguousarray(self._tracks[name][:, i]))
 
