@@ -225,6 +225,35 @@ def test_a_failed_translation_leaves_no_output_folder(inputs, tmp_path, capsys, 
     assert [p.name for p in tmp_path.iterdir()] == ["made"] and list(made.iterdir()) == []
 
 
+def test_too_little_free_space_is_refused_before_translating(inputs, tmp_path, capsys, monkeypatch):
+    """The flow (2 float32 per pixel, all frames but the last) and depth (1 float32) of 5 frames at
+    64x128: 8192 * (8 * 4 + 4 * 5) = 425,984 bytes; a right eye doubles them and adds a disparity
+    per frame: 8192 * (2 * 52 + 4 * 5) = 1,015,808. One byte less free: refused, nothing written."""
+    import collections
+    import types
+
+    from sim2real.inference import translate
+
+    model = load_run(inputs["run"], device="cpu")
+    mono = translate.trajectory_source(model, inputs["scene"], inputs["traj"])
+    assert translate.least_bytes(mono) == 425_984
+    assert translate.least_bytes(translate.trajectory_source(model, inputs["scene"], inputs["traj"], 5.0)) == 1_015_808
+    usage = collections.namedtuple("usage", "total used free")
+    for free, code in ((425_983, 2), (425_984, 0)):
+        monkeypatch.setattr(translate, "shutil", types.SimpleNamespace(disk_usage=lambda p, f=free: usage(0, 0, f)))
+        out = tmp_path / f"out{free}"
+        got, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
+                       "--out", out, "--device", "cpu", "--no-progress")
+        assert got == code, err
+        if code:
+            assert one_line(err).endswith(f"the ground truth of 5 frames at {W}x{H} needs at least 0.4 MiB (its flow and "
+                                          f"depth maps alone) but {tmp_path} has 0.4 MiB free; free space, write "
+                                          f"elsewhere or translate fewer frames")
+            assert not out.exists()
+        else:
+            assert (out / "translate.json").is_file()
+
+
 def test_mixed_precision_path_on_cpu(inputs, monkeypatch):
     """The CUDA path (bf16 autocast, channels-last), run on the CPU: frames within bf16 rounding
     of the fp32 ones, and still independent of what shares their batch."""
