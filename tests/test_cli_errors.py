@@ -325,3 +325,28 @@ def test_sigterm_unwinds_a_command_and_leaves_no_output(tmp_path):
     err = proc.stderr.read().strip().splitlines()
     assert code == 143 and err[-1] == "sim2real: terminated (SIGTERM)", (code, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+
+def test_render_refuses_too_little_free_space_before_rendering(tmp_path, capsys, monkeypatch):
+    """The need is the views' arrays: at most each file's size, so free space equal to what the
+    files take passes, and one byte under the arrays alone is refused before anything is written."""
+    import collections
+    import shutil
+
+    from sim2real.render.gbuffer import GBuffer
+
+    generate_scene(0).save(tmp_path / "scene")
+    argv = ["render", str(tmp_path / "scene"), "--views", "2", "--height", "32", "--width", "64", "--seed", "0"]
+    assert main([*argv, "--out", str(tmp_path / "views")]) == 0
+    files = sorted((tmp_path / "views").glob("view_*.npz"))
+    arrays = GBuffer.load(files[0]).nbytes
+    assert 0.9 * files[0].stat().st_size < arrays <= files[0].stat().st_size  # headers and class table on top
+    usage = collections.namedtuple("usage", "total used free")
+    for free, code in ((sum(f.stat().st_size for f in files), 0), (2 * arrays - 1, 2)):
+        monkeypatch.setattr(shutil, "disk_usage", lambda p, f=free: usage(0, 0, f))
+        out = tmp_path / f"views{free}"
+        assert main([*argv, "--out", str(out)]) == code
+        err = capsys.readouterr().err.strip()
+        if code:
+            assert err.startswith("sim2real: error: rendering 2 views at 64x32 needs at least") and "\n" not in err
+            assert not out.exists()

@@ -252,3 +252,24 @@ def test_an_output_filled_in_place_is_removed_when_its_command_fails(tmp_path):
         with removed_on_failure(ok):
             pass
     assert (ok / "a.txt").read_text() == "a"
+
+
+def test_free_space_is_checked_where_the_output_will_go(tmp_path, monkeypatch):
+    """check_free_space asks the nearest existing folder of the path and refuses, in one line with
+    both sizes, a need beyond its free bytes (MiB below 1 GiB, GiB above)."""
+    import collections
+    import shutil
+
+    from sim2real.fileio import check_free_space
+
+    usage = collections.namedtuple("usage", "total used free")
+    asked = []
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: asked.append(p) or usage(0, 0, 100 * 2**20))
+    check_free_space(tmp_path / "new" / "out", 100 * 2**20, "a video", "write elsewhere")  # exactly enough
+    assert asked == [tmp_path]  # the folder that exists, not the one still to be made
+    with pytest.raises(UserError) as e:
+        check_free_space(tmp_path / "out", 100 * 2**20 + 1, "a video", "write elsewhere")
+    assert _one_line(e) == f"a video needs at least 100.0 MiB but {tmp_path} has 100.0 MiB free; write elsewhere"
+    with pytest.raises(UserError) as e:
+        check_free_space(tmp_path, 3 * 2**30, "a pool", "lower it")
+    assert _one_line(e) == f"a pool needs at least 3.00 GiB but {tmp_path} has 100.0 MiB free; lower it"

@@ -230,7 +230,6 @@ def test_too_little_free_space_is_refused_before_translating(inputs, tmp_path, c
     64x128: 8192 * (8 * 4 + 4 * 5) = 425,984 bytes; a right eye doubles them and adds a disparity
     per frame: 8192 * (2 * 52 + 4 * 5) = 1,015,808. One byte less free: refused, nothing written."""
     import collections
-    import types
 
     from sim2real.inference import translate
 
@@ -240,14 +239,14 @@ def test_too_little_free_space_is_refused_before_translating(inputs, tmp_path, c
     assert translate.least_bytes(translate.trajectory_source(model, inputs["scene"], inputs["traj"], 5.0)) == 1_015_808
     usage = collections.namedtuple("usage", "total used free")
     for free, code in ((425_983, 2), (425_984, 0)):
-        monkeypatch.setattr(translate, "shutil", types.SimpleNamespace(disk_usage=lambda p, f=free: usage(0, 0, f)))
+        monkeypatch.setattr(shutil, "disk_usage", lambda p, f=free: usage(0, 0, f))
         out = tmp_path / f"out{free}"
         got, err = cli(capsys, "translate", inputs["run"], "--scene", inputs["scene"], "--trajectory", inputs["traj"],
                        "--out", out, "--device", "cpu", "--no-progress")
         assert got == code, err
         if code:
-            assert one_line(err).endswith(f"the ground truth of 5 frames at {W}x{H} needs at least 0.4 MiB (its flow and "
-                                          f"depth maps alone) but {tmp_path} has 0.4 MiB free; free space, write "
+            assert one_line(err).endswith(f"the ground truth of 5 frames at {W}x{H} (its flow and depth maps alone) "
+                                          f"needs at least 0.4 MiB but {tmp_path} has 0.4 MiB free; free space, write "
                                           f"elsewhere or translate fewer frames")
             assert not out.exists()
         else:

@@ -234,6 +234,21 @@ def staged_output_dir(path: str | os.PathLike) -> Iterator[Path]:
         raise
 
 
+def check_free_space(place: str | os.PathLike, need: int, what: str, fixes: str) -> None:
+    """Refuse, in one line, a ``place`` (or its nearest existing parent) whose file system has
+    fewer than ``need`` bytes free: ``WHAT needs at least N but PLACE has M free; FIXES``. For a
+    command that would otherwise fail near its end, after minutes or hours."""
+    place = Path(place).absolute()
+    place = next(p for p in (place, *place.parents) if p.exists())
+    free = shutil.disk_usage(place).free
+    if free < need:
+        raise UserError(f"{what} needs at least {_bytes(need)} but {place} has {_bytes(free)} free; {fixes}")
+
+
+def _bytes(n: int) -> str:
+    return f"{n / 2**30:.2f} GiB" if n >= 2**30 else f"{n / 2**20:.1f} MiB"
+
+
 def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:
     """The JSON object in ``path``, or a one-line :class:`UserError` naming ``what``, the file and
     the problem: missing or unreadable, not UTF-8, not JSON, or not an object at the top level

@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from sim2real.data.views import write_views_manifest
-    from sim2real.fileio import staged_output_dir
+    from sim2real.fileio import check_free_space, staged_output_dir
     from sim2real.render.raycast import RayCaster, check_camera_region, render_views
     from sim2real.scene.scene import Scene
     from sim2real.scene.trajectory import MAX_BACKGROUND, Trajectory, iter_poses
@@ -54,6 +54,9 @@ def run(args: argparse.Namespace) -> int:
         poses = iter_poses(caster, args.views, args.height, args.width, None, args.seed, max_background=max_bg, K=K)
         first = next(poses)
         cameras, count = itertools.chain([first], poses), args.views
+    probe = caster.render(cameras[0] if args.trajectory else first)  # what a view file holds
+    check_free_space(args.out, count * probe.nbytes, f"rendering {counted(count, 'view')} at "
+                     f"{probe.width}x{probe.height}", "free space, write elsewhere or render fewer views")
     with staged_output_dir(args.out) as out:
         paths = [out / f"view_{i:05d}.npz" for i in range(count)]
         render_views(scene, cameras, paths, workers=args.workers, preview=args.preview, caster=caster)

@@ -57,7 +57,7 @@ except ImportError:  # Windows: not a target; pools are then built without a loc
 from sim2real import __version__
 from sim2real.config import DataConfig
 from sim2real.errors import UserError, reason
-from sim2real.fileio import atomic_write_json, cache_root, fsync_files, read_json, temp_dir_beside
+from sim2real.fileio import atomic_write_json, cache_root, check_free_space, fsync_files, read_json, temp_dir_beside
 from sim2real.pool import WorkerPool
 from sim2real.render.gbuffer import GBuffer
 from sim2real.render.raycast import RayCaster
@@ -254,11 +254,9 @@ def _build(folder: Path, spec: dict, scene_dir: Path, scene: Scene, progress: bo
     n, h, w = spec["views"], spec["height"], spec["width"]
     fp16 = fp16_fits(scene)
     need = n * bytes_per_view(h, w, fp16)
-    free = shutil.disk_usage(folder.parent).free
-    if free < need:
-        raise UserError(f"the view pool of scene '{spec['scene']}' needs {need / 2**30:.2f} GiB but {folder.parent} "
-                        f"has {free / 2**30:.2f} GiB free; point SIM2REAL_CACHE elsewhere, lower data.view_pool, "
-                        f"or set data.view_pool=0 (fresh views, no disk)")
+    check_free_space(folder.parent, need, f"the view pool of scene '{spec['scene']}'",
+                     "point SIM2REAL_CACHE elsewhere, lower data.view_pool, or set data.view_pool=0 "
+                     "(fresh views, no disk)")
     tmp = temp_dir_beside(folder)
     try:
         path = tmp / GBUFFERS

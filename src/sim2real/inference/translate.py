@@ -9,7 +9,6 @@ pool) or a views folder through a :class:`~sim2real.inference.model.TrainedModel
 from __future__ import annotations
 
 import os
-import shutil
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -21,7 +20,7 @@ from tqdm import tqdm
 from sim2real.config import to_dict
 from sim2real.data.views import list_views
 from sim2real.errors import UserError
-from sim2real.fileio import atomic_write_json, deferred_fsync, staged_output_dir
+from sim2real.fileio import atomic_write_json, check_free_space, deferred_fsync, staged_output_dir
 from sim2real.inference.export import GroundTruthWriter
 from sim2real.inference.frames import chunked, iter_gbuffers, iter_view_files
 from sim2real.inference.model import TrainedModel, translate_batch
@@ -68,19 +67,10 @@ def least_bytes(source: TranslateSource) -> int:
 def check_space(source: TranslateSource, out: str | os.PathLike) -> None:
     """Refuse, before anything is translated, an output place with less free space than
     :func:`least_bytes`: else a long translation would fail at its end."""
-    need = least_bytes(source)
-    place = next(p for p in [Path(out).absolute(), *Path(out).absolute().parents] if p.exists())
-    free = shutil.disk_usage(place).free
-    if free < need:
-        h, w = source.size
-        eyes = " (both eyes)" if source.stereo_mm else ""
-        raise UserError(f"the ground truth of {source.frames} frames at {w}x{h}{eyes} needs at least {_mib(need)} "
-                        f"(its flow and depth maps alone) but {place} has {_mib(free)} free; free space, write "
-                        f"elsewhere or translate fewer frames")
-
-
-def _mib(n: int) -> str:
-    return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.1f} MiB"
+    h, w = source.size
+    eyes = " (both eyes)" if source.stereo_mm else ""
+    check_free_space(out, least_bytes(source), f"the ground truth of {source.frames} frames at {w}x{h}{eyes} (its "
+                     f"flow and depth maps alone)", "free space, write elsewhere or translate fewer frames")
 
 
 def trajectory_source(model: TrainedModel, scene: str | os.PathLike, trajectory: str | os.PathLike,

@@ -61,6 +61,11 @@ class GBuffer:
         return int(self.depth.shape[1])
 
     @property
+    def nbytes(self) -> int:
+        """Bytes of its arrays: what :meth:`save` writes, less the headers and the class names."""
+        return sum(np.asarray(getattr(self, k)).nbytes for k in KEYS if k != "classes")
+
+    @property
     def mask(self) -> np.ndarray:
         """True where a ray hit a surface."""
         return self.object_id >= 0
