@@ -66,7 +66,10 @@ def least_bytes(source: TranslateSource) -> int:
 
 def check_space(source: TranslateSource, out: str | os.PathLike) -> None:
     """Refuse, before anything is translated, an output place with less free space than
-    :func:`least_bytes`: else a long translation would fail at its end."""
+    :func:`least_bytes`: else a long translation would fail at its end (a source made without
+    its ``size`` is not checked)."""
+    if source.size is None:
+        return
     h, w = source.size
     eyes = " (both eyes)" if source.stereo_mm else ""
     check_free_space(out, least_bytes(source), f"the ground truth of {source.frames} frames at {w}x{h}{eyes} (its "
