@@ -187,9 +187,8 @@ def removed_on_failure(path: str | os.PathLike) -> Iterator[Path]:
     absolute path (the demo's scenes, real set, run and evaluation), which a renamed folder
     (:func:`staged_output_dir`) would break. When the block raises, what it wrote is removed, and
     the folder too if this made it: a rerun into the same name is accepted."""
-    path = check_output_dir(path)
-    made = not path.exists()
-    path.mkdir(parents=True, exist_ok=True)
+    made = not Path(path).exists()
+    path = prepare_output_dir(path)
     try:
         yield path
     except BaseException:

@@ -73,8 +73,9 @@ def trajectory_from_poses(path: str | os.PathLike, K: np.ndarray, height: int, w
     if fps is None and note is not None and len(steps) > 1:
         uneven = (steps > UNEVEN / rate) | (steps < 1.0 / (UNEVEN * rate))
         if uneven.any():
+            k = int(np.argmax(uneven))
             note(f"{int(uneven.sum())} of {len(steps)} pose intervals are more than {UNEVEN:g}x off their median "
-                 f"{1.0 / rate:.3g} s (first after pose {int(np.argmax(uneven)) + 1}: {steps[np.argmax(uneven)]:.3g} s), "
+                 f"{1.0 / rate:.3g} s (first after pose {k + 1}: {steps[k]:.3g} s), "
                  f"yet each row becomes one frame at {rate:.3g} fps: --fps F resamples the path evenly in time")
     cams = [Camera(np.asarray(K, dtype=np.float64), invert_rigid(T), height, width) for T in c2w]
     return Trajectory(cams, fps=rate), len(rows)
